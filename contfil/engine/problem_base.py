@@ -1,0 +1,121 @@
+"""The interface every continuable problem implements.
+
+A *problem* is a parametrised nonlinear system ``G(x, p) = 0`` with
+``x`` in R^n and a scalar continuation parameter ``p``. Equilibria
+(``x = u``), rotating waves (``x = (u, omega)``) and periodic orbits by
+shooting (``x = (u, T[, drift])``) are all problems; the continuation
+driver is written once, against this interface, and never looks inside.
+
+Finite-difference defaults are provided for the derivatives; subclasses
+override them when they can do better.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class Stability:
+    """Spectral data of a solution.
+
+    ``values`` are eigenvalues (``kind == "eigenvalues"``; unstable when
+    Re > 0) or Floquet multipliers (``kind == "multipliers"``; unstable when
+    |mu| > 1), sorted leading first. ``trivial`` flags the ones forced by
+    time shift or continuous symmetry. ``vectors`` (optional, columns) are the
+    matching eigenvectors, needed for branch switching.
+    """
+
+    values: NDArray[np.complex128]
+    kind: str = "eigenvalues"
+    trivial: NDArray[np.bool_] | None = None
+    vectors: NDArray[np.complex128] | None = None
+    residual: float = float("nan")
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_unstable(self) -> int:
+        mask = np.ones(len(self.values), dtype=bool) if self.trivial is None else ~self.trivial
+        v = self.values[mask]
+        if self.kind == "multipliers":
+            return int(np.sum(np.abs(v) > 1.0))
+        return int(np.sum(v.real > 0.0))
+
+
+def fd_step(x: Array, v: Array, rel: float = 1e-7) -> float:
+    """Finite-difference increment so that ``eps*|v|`` is ~``rel*(1+|x|)``."""
+    nv = float(np.linalg.norm(v))
+    if nv == 0.0:
+        return 0.0
+    return rel * (1.0 + float(np.linalg.norm(x))) / nv
+
+
+class Problem(ABC):
+    """``G(x, p) = 0`` to be continued in ``p``.
+
+    Attributes
+    ----------
+    n:
+        Number of unknowns in ``x`` (equal to the number of equations).
+    kind:
+        Branch kind produced (see :mod:`contfil.engine.branch`).
+    dense:
+        True when a dense Jacobian is affordable (small systems); the
+        continuation then uses dense linear algebra, otherwise Krylov.
+    """
+
+    n: int
+    kind: str
+    dense: bool = True
+
+    @abstractmethod
+    def residual(self, x: Array, p: float) -> Array:
+        """``G(x, p)``."""
+
+    def jacobian(self, x: Array, p: float) -> Array:
+        """Dense ``G_x`` by central differences (override when known)."""
+        n = x.size
+        J = np.empty((n, n))
+        h = 1e-6 * (1.0 + np.abs(x))
+        for j in range(n):
+            e = np.zeros(n)
+            e[j] = h[j]
+            J[:, j] = (self.residual(x + e, p) - self.residual(x - e, p)) / (2 * h[j])
+        return J
+
+    def jvp(self, x: Array, p: float, v: Array, g0: Array | None = None) -> Array:
+        """``G_x v`` by a one-sided finite difference (``g0 = G(x, p)`` if known)."""
+        eps = fd_step(x, v)
+        if eps == 0.0:
+            return np.zeros_like(x)
+        if g0 is None:
+            g0 = self.residual(x, p)
+        return (self.residual(x + eps * v, p) - g0) / eps
+
+    def dp(self, x: Array, p: float) -> Array:
+        """``G_p`` by central differences."""
+        h = 1e-6 * (1.0 + abs(p))
+        return (self.residual(x, p + h) - self.residual(x, p - h)) / (2 * h)
+
+    def accept(self, x: Array, p: float) -> None:
+        """Hook called when a point is accepted (e.g. to move phase-condition
+        references). Default: nothing."""
+
+    @abstractmethod
+    def stability(self, x: Array, p: float) -> Stability:
+        """Eigenvalues or Floquet multipliers at a solution."""
+
+    @abstractmethod
+    def state(self, x: Array) -> Array:
+        """The model state ``u`` contained in ``x``."""
+
+    def extra(self, x: Array) -> dict[str, float]:
+        """Kind-specific unknowns in ``x`` (period, omega, drift)."""
+        return {}

@@ -1,0 +1,1 @@
+"""contfil.models.filament."""
