@@ -1,1 +1,50 @@
-"""contfil.engine."""
+"""contfil.engine: generic continuation (knows nothing about filaments).
+
+Public API::
+
+    from contfil.engine import (
+        EquilibriumProblem, Continuation, ContinuationSettings, continue_branch,
+        Event, EventContext, FoldEvent, BranchPointEvent, HopfEvent,
+        switch_at_branch_point, branch_point_tangents, hopf_data,
+    )
+"""
+
+from contfil.engine.branch import Branch, Point, SpecialPoint
+from contfil.engine.continuation import Continuation, ContinuationSettings, continue_branch
+from contfil.engine.eigen import dense_stability, shift_invert_stability
+from contfil.engine.equilibrium import EquilibriumProblem
+from contfil.engine.events import (
+    BranchPointEvent,
+    Event,
+    EventContext,
+    FoldEvent,
+    HopfEvent,
+    NodeFocusEvent,
+    default_events,
+)
+from contfil.engine.newton import NewtonInfo, newton_dense, newton_krylov
+from contfil.engine.problem_base import Problem, Stability
+
+__all__ = [
+    "Branch",
+    "BranchPointEvent",
+    "Continuation",
+    "ContinuationSettings",
+    "EquilibriumProblem",
+    "Event",
+    "EventContext",
+    "FoldEvent",
+    "HopfEvent",
+    "NewtonInfo",
+    "NodeFocusEvent",
+    "Point",
+    "Problem",
+    "SpecialPoint",
+    "Stability",
+    "continue_branch",
+    "default_events",
+    "dense_stability",
+    "newton_dense",
+    "newton_krylov",
+    "shift_invert_stability",
+]

@@ -1,1 +1,31 @@
-"""contfil.models.catalog."""
+"""Textbook systems with exactly known bifurcation points (engine tests).
+
+Each factory returns a :class:`CatalogEntry` (model, parameter name, start,
+exact answers). Cycle systems live in ``cycles_*.py`` modules.
+"""
+
+from contfil.models.catalog.bratu import bratu, bratu_fold_exact, bratu_solution
+from contfil.models.catalog.brusselator import brusselator
+from contfil.models.catalog.normal_forms import (
+    CatalogEntry,
+    hopf_2d,
+    o2_hopf,
+    pitchfork,
+    saddle_node,
+    transcritical,
+    z2_pitchfork,
+)
+
+__all__ = [
+    "CatalogEntry",
+    "bratu",
+    "bratu_fold_exact",
+    "bratu_solution",
+    "brusselator",
+    "hopf_2d",
+    "o2_hopf",
+    "pitchfork",
+    "saddle_node",
+    "transcritical",
+    "z2_pitchfork",
+]

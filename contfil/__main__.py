@@ -1,0 +1,7 @@
+"""``python -m contfil`` runs the command line (see :mod:`contfil.cli`)."""
+
+import sys
+
+from contfil.cli import main
+
+sys.exit(main())

@@ -1,0 +1,148 @@
+"""The ``contfil`` command line.
+
+::
+
+    contfil run SPEC [--out DIR] [--resume] [--no-plots] [--quiet]
+    contfil simulate SPEC [--out DIR]
+    contfil export RUN --format json|graphml [-o FILE]
+    contfil plot RUN [--out DIR] [--observable NAME]
+    contfil show RUN
+
+Errors in the input (bad spec, missing run) print one line ``contfil: error:
+...`` naming the problem and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from contfil.errors import ContfilError, SpecError
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="contfil",
+        description="Numerical continuation and bifurcation analysis (contfil).",
+    )
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    r = sub.add_parser("run", help="run a study: continue, switch, store, plot")
+    r.add_argument("spec", help="spec file (TOML)")
+    r.add_argument("--out", help="run directory (default: runs/<spec name>[-N])")
+    r.add_argument("--resume", action="store_true",
+                   help="carry on an interrupted run in --out (or the newest runs/<name>*)")
+    r.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
+    r.add_argument("--quiet", action="store_true", help="no progress line, no summary")
+
+    s = sub.add_parser("simulate", help="integrate the spec's model in time")
+    s.add_argument("spec", help="spec file (TOML) with [scene] or [model]")
+    s.add_argument("--out", help="output directory (default: runs/<spec name>-simulate)")
+
+    e = sub.add_parser("export", help="export a run's branch graph")
+    e.add_argument("run", help="run directory")
+    e.add_argument("--format", choices=("json", "graphml"), default="json")
+    e.add_argument("-o", "--output", help="output file (default: RUN/graph.<format>)")
+
+    pl = sub.add_parser("plot", help="write a run's figures as PNG")
+    pl.add_argument("run", help="run directory")
+    pl.add_argument("--out", help="directory for the PNGs (default: RUN/plots)")
+    pl.add_argument("--observable", help="diagram ordinate (default: bending_energy or norm)")
+
+    sh = sub.add_parser("show", help="print a run's branches and special points")
+    sh.add_argument("run", help="run directory")
+    return p
+
+
+def _cmd_run(args: argparse.Namespace) -> int:
+    from contfil.graph.explorer import Progress
+    from contfil.graph.study import run_study
+    from contfil.io.spec import load_spec
+
+    spec = load_spec(args.spec)
+    t0 = time.monotonic()
+    progress = Progress(enabled=False) if args.quiet else Progress()
+    res = run_study(spec, out=args.out, resume=args.resume, progress=progress,
+                    plots=False if args.no_plots else None)
+    if not args.quiet:
+        print(res.graph.summary())
+        print(f"{len(res.graph)} branches, {len(res.graph.special_points)} special points, "
+              f"{res.n_computed_points} points computed in {time.monotonic() - t0:.1f} s")
+        print(f"run directory: {res.run_dir}")
+        for f in res.files:
+            print(f"  {f}")
+    return 0
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from contfil.io.store import load_run_graph
+
+    g = load_run_graph(args.run)
+    out = Path(args.output) if args.output else Path(args.run) / f"graph.{args.format}"
+    if args.format == "json":
+        if out.resolve() == (Path(args.run) / "graph.json").resolve():
+            print(out)  # the run's own graph.json is already the node-link export
+            return 0
+        g.save_json(out)
+    else:
+        g.save_graphml(out)
+    print(out)
+    return 0
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from contfil.plot.diagrams import as_graph, save_run_plots
+
+    g = as_graph(args.run)
+    out = Path(args.out) if args.out else Path(args.run) / "plots"
+    for f in save_run_plots(g, out, args.observable):
+        print(f)
+    return 0
+
+
+def _cmd_show(args: argparse.Namespace) -> int:
+    from contfil.io.store import load_run_graph
+
+    print(load_run_graph(args.run).summary())
+    return 0
+
+
+def _cmd_simulate(args: argparse.Namespace) -> int:
+    from contfil.io.simulate import simulate
+    from contfil.io.spec import load_spec
+
+    spec = load_spec(args.spec)
+    out = Path(args.out) if args.out else Path("runs") / f"{spec.name}-simulate"
+    res = simulate(spec, out)
+    for line in res.summary_lines():
+        print(line)
+    for f in res.files:
+        print(f"  {f}")
+    return 0
+
+
+COMMANDS = {"run": _cmd_run, "simulate": _cmd_simulate, "export": _cmd_export,
+            "plot": _cmd_plot, "show": _cmd_show}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``contfil`` console script; returns the exit status."""
+    os.environ.setdefault("MPLBACKEND", "Agg")
+    args = _parser().parse_args(argv)
+    try:
+        return COMMANDS[args.command](args)
+    except (SpecError, ContfilError) as exc:
+        msg = " ".join(str(exc).split())  # one line
+        print(f"contfil: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("contfil: interrupted (resume with --resume)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,193 @@
+"""Bifurcations of periodic orbits as :class:`~contfil.engine.events.Event` s.
+
+- fold of cycles (``CYCLE_FOLD``): the ``p`` component of the tangent
+  changes sign (:class:`CycleFoldEvent`);
+- branch point / pitchfork of cycles (``CYCLE_BRANCH_POINT``): the
+  determinant of the shooting system's bordered Jacobian
+  ``[[G_x, G_p], [W τ]]`` changes sign; a fold does not change it
+  (:class:`CycleBranchPointEvent`). Both put a multiplier at +1; the
+  determinant tells them apart exactly as for equilibria;
+- period doubling (``PERIOD_DOUBLING``): a real multiplier crosses -1;
+- torus / Neimark–Sacker (``TORUS``): a complex pair crosses ``|μ| = 1``,
+  test ``|μ| - 1``.
+
+Multiplier tests skip the trivial multipliers (flagged by their eigenvectors
+in :mod:`contfil.engine.floquet`). Detection needs both the count of
+multipliers of the tested type outside the unit circle *and* the total
+unstable count to change (a complex pair becoming real outside the circle is
+no bifurcation); localisation is on the signed distance to the circle of the
+critical multiplier, which is continuous along the branch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from contfil.engine.branch import CYCLE_BRANCH_POINT, CYCLE_FOLD, PERIOD_DOUBLING, TORUS
+from contfil.engine.events import BranchPointEvent, Event, EventContext, FoldEvent
+from contfil.engine.problem_base import Stability
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "CycleFoldEvent",
+    "CycleBranchPointEvent",
+    "PeriodDoublingEvent",
+    "TorusEvent",
+    "cycle_events",
+]
+
+
+def _nontrivial(st: Stability) -> tuple[NDArray[np.complex128], NDArray[np.intp]]:
+    vals = np.asarray(st.values, dtype=complex)
+    idx = np.arange(vals.size)
+    if st.trivial is not None:
+        idx = idx[~np.asarray(st.trivial, dtype=bool)]
+    return vals[idx], idx
+
+
+def _is_real(z: NDArray[np.complex128], tol: float) -> NDArray[np.bool_]:
+    return np.abs(z.imag) <= tol * np.maximum(1.0, np.abs(z))
+
+
+def _critical_vector(st: Stability, target: complex) -> dict[str, Any]:
+    """The non-trivial multiplier closest to ``target`` and its eigenvector."""
+    vals, idx = _nontrivial(st)
+    if vals.size == 0:
+        return {}
+    k = int(np.argmin(np.abs(vals - target)))
+    out: dict[str, Any] = {"multiplier": complex(vals[k])}
+    if st.vectors is not None:
+        v = np.asarray(st.vectors[:, idx[k]], dtype=complex)
+        # real eigenvector for a real multiplier: rotate the phase away
+        j = int(np.argmax(np.abs(v)))
+        v = v * np.exp(-1j * np.angle(v[j]))
+        out["v_re"], out["v_im"] = v.real.copy(), v.imag.copy()
+    return out
+
+
+class CycleFoldEvent(FoldEvent):
+    """Fold (limit point) of cycles: ``τ_p`` changes sign."""
+
+    def __init__(self) -> None:
+        super().__init__(kind=CYCLE_FOLD, name="cycle_fold")
+        self.suppressed_by = ("cycle_branch_point",)
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        kind, data = super().special_point_data(ctx, j, ctx0, ctx1)
+        data.update(_critical_vector(ctx.stability_with_vectors(), 1.0))
+        return kind, data
+
+
+class CycleBranchPointEvent(BranchPointEvent):
+    """Branch point of cycles (pitchfork / transcritical / symmetry breaking).
+
+    Data for switching: the critical Floquet eigenvector (``v_re``), and for
+    dense problems the second tangent ``tangent2`` (the null vector of
+    ``[G_x G_p]`` orthogonal, in the arclength metric, to the branch tangent).
+    """
+
+    def __init__(self) -> None:
+        super().__init__(kind=CYCLE_BRANCH_POINT, name="cycle_branch_point")
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        kind, data = super().special_point_data(ctx, j, ctx0, ctx1)
+        data.update(_critical_vector(ctx.stability_with_vectors(), 1.0))
+        if ctx.jacobian is not None and ctx.gp is not None:
+            A = np.column_stack([ctx.jacobian, ctx.gp])
+            _, _, Vt = np.linalg.svd(A)
+            N = Vt[-2:].T  # approximate 2-D null space
+            t = ctx.tangent
+            w = ctx.weights
+            # component of the null space W-orthogonal to the tangent
+            c = np.array([np.sum(w * t * N[:, 0]), np.sum(w * t * N[:, 1])])
+            t2 = N @ np.array([c[1], -c[0]])
+            nrm = np.sqrt(np.sum(w * t2 * t2))
+            if nrm > 0:
+                data["tangent2"] = t2 / nrm
+        return kind, data
+
+
+class _MultiplierEvent(Event):
+    """Shared logic of the period-doubling and torus tests."""
+
+    needs_stability = True
+    imag_tol = 1e-6
+
+    def _candidates(self, st: Stability) -> NDArray[np.complex128]:
+        raise NotImplementedError
+
+    def values(self, ctx: EventContext) -> Array:
+        c = self._candidates(ctx.stability)
+        return np.array([float(np.sum(np.abs(c) > 1.0)), float(ctx.stability.n_unstable)])
+
+    def crossed(self, v0: Array, v1: Array) -> list[int]:
+        return [0] if (v0[0] != v1[0] and v0[1] != v1[1]) else []
+
+    def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
+        def g(ctx: EventContext) -> float:
+            c = self._candidates(ctx.stability)
+            if c.size == 0:
+                return float("nan")
+            k = int(np.argmin(np.abs(np.abs(c) - 1.0)))
+            return float(np.abs(c[k]) - 1.0)
+
+        return g
+
+
+class PeriodDoublingEvent(_MultiplierEvent):
+    """Period doubling (flip): a real multiplier crosses -1 (test ``|μ| - 1``)."""
+
+    name = "period_doubling"
+    kind = PERIOD_DOUBLING
+
+    def _candidates(self, st: Stability) -> NDArray[np.complex128]:
+        vals, _ = _nontrivial(st)
+        return vals[_is_real(vals, self.imag_tol) & (vals.real < 0)]
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        st = ctx.stability_with_vectors()
+        data = _critical_vector(st, -1.0)
+        if not data or abs(abs(data["multiplier"]) - 1.0) > 1e-4:
+            return None
+        data.update({"test_value": abs(data["multiplier"]) - 1.0, "switchable": True})
+        return self.kind, data
+
+
+class TorusEvent(_MultiplierEvent):
+    """Neimark–Sacker (torus): a complex pair crosses ``|μ| = 1`` (test ``|μ| - 1``).
+
+    Data: the multiplier, its angle ``arg μ`` and rotation number
+    ``arg μ / 2π``, and the complex eigenvector (``v_re``, ``v_im``).
+    """
+
+    name = "torus"
+    kind = TORUS
+
+    def _candidates(self, st: Stability) -> NDArray[np.complex128]:
+        vals, _ = _nontrivial(st)
+        return vals[~_is_real(vals, self.imag_tol)]
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        st = ctx.stability_with_vectors()
+        c = self._candidates(st)
+        if c.size == 0:
+            return None
+        k = int(np.argmin(np.abs(np.abs(c) - 1.0)))
+        mu = c[k] if c[k].imag >= 0 else np.conj(c[k])
+        if abs(abs(mu) - 1.0) > 1e-4:
+            return None
+        data = _critical_vector(st, mu)
+        ang = float(np.angle(mu))
+        data.update({"multiplier": complex(mu), "angle": ang, "rotation_number": ang / (2 * np.pi),
+                     "test_value": float(abs(mu) - 1.0), "switchable": False})
+        return self.kind, data
+
+
+def cycle_events() -> list[Event]:
+    """The default events of periodic-orbit branches."""
+    return [CycleFoldEvent(), CycleBranchPointEvent(), PeriodDoublingEvent(), TorusEvent()]

@@ -1,0 +1,151 @@
+"""Eigenvalues of Jacobians: dense for small systems, shift-invert Arnoldi
+for large ones.
+
+All functions return a :class:`~contfil.engine.problem_base.Stability` with
+eigenvalues sorted *leading first*: by decreasing real part, and for equal
+real parts the member with positive imaginary part first (so a complex pair
+appears as ``a+ib, a-ib``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import scipy.linalg as sla
+from numpy.typing import NDArray
+from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigs, gmres
+
+from contfil.engine.problem_base import Stability
+from contfil.errors import ConvergenceError, NonFiniteError
+
+Array = NDArray[np.float64]
+
+
+def sort_leading(values: NDArray, vectors: NDArray | None = None) -> tuple[NDArray, NDArray | None]:
+    """Sort eigenvalues by decreasing real part (then decreasing imaginary part).
+
+    Real parts are rounded to 12 significant digits for the primary key, so
+    a conjugate pair whose real parts differ in the last bit still comes out
+    as ``a+ib, a-ib``.
+    """
+    vals = np.asarray(values, dtype=complex)
+    scale = max(1.0, float(np.max(np.abs(vals)))) if vals.size else 1.0
+    re_key = np.round(vals.real / scale, 12)
+    order = np.lexsort((-vals.imag, -re_key))
+    vals = vals[order]
+    if vectors is not None:
+        vectors = np.asarray(vectors)[:, order]
+    return vals, vectors
+
+
+def dense_stability(J: Array, vectors: bool = False) -> Stability:
+    """All eigenvalues of a dense matrix ``J`` (``scipy.linalg.eig``).
+
+    Parameters
+    ----------
+    J:
+        Square real matrix.
+    vectors:
+        Also return right eigenvectors (columns, unit 2-norm).
+    """
+    J = np.asarray(J, dtype=float)
+    if not np.all(np.isfinite(J)):
+        raise NonFiniteError("dense_stability: the Jacobian has non-finite entries")
+    if vectors:
+        w, V = sla.eig(J, check_finite=False)
+    else:
+        w, V = sla.eigvals(J, check_finite=False), None
+    w, V = sort_leading(w, V)
+    res = float("nan")
+    if V is not None and w.size:
+        res = float(np.max(np.linalg.norm(J @ V - V * w, axis=0)))
+    return Stability(values=w, kind="eigenvalues", vectors=V, residual=res, info={"method": "dense"})
+
+
+def shift_invert_stability(
+    apply_inverse: Callable[[Array], Array],
+    n: int,
+    sigma: complex | float,
+    k: int = 8,
+    *,
+    vectors: bool = False,
+    tol: float = 1e-10,
+    matvec: Callable[[Array], Array] | None = None,
+) -> Stability:
+    """Leading ``k`` eigenvalues near ``sigma`` by shift-invert Arnoldi.
+
+    Parameters
+    ----------
+    apply_inverse:
+        ``v -> (J - sigma I)^{-1} v`` for a *real* shift ``sigma``.
+    n:
+        Dimension.
+    sigma:
+        Real shift. For a stiff dissipative system the eigenvalues that decide
+        stability are the ones nearest the imaginary axis, so ``sigma = 0``
+        (or a small positive value) finds them; the result is then sorted by
+        real part.
+    k:
+        Number of eigenvalues wanted (``k < n - 1``).
+    matvec:
+        ``v -> J v``, used only to report the eigen-residual.
+    """
+    if k >= n - 1:
+        raise ValueError(f"shift_invert_stability: k={k} must be < n-1={n - 1}; use dense_stability")
+    s = float(np.real(sigma))
+    op = LinearOperator((n, n), matvec=lambda v: apply_inverse(np.asarray(v, float).ravel()), dtype=float)
+    try:
+        nu, V = eigs(op, k=k, which="LM", tol=tol, return_eigenvectors=True)
+    except ArpackNoConvergence as exc:
+        raise ConvergenceError(
+            f"shift-invert Arnoldi (n={n}, k={k}, sigma={s}) did not converge: {exc}"
+        ) from None
+    lam = s + 1.0 / nu
+    lam, V = sort_leading(lam, V)
+    res = float("nan")
+    if matvec is not None:
+        res = max(
+            float(np.linalg.norm(matvec(V[:, j].real) + 1j * matvec(V[:, j].imag) - lam[j] * V[:, j]))
+            for j in range(lam.size)
+        )
+    return Stability(
+        values=lam, kind="eigenvalues", vectors=V if vectors else None, residual=res,
+        info={"method": "shift-invert", "sigma": s, "k": k},
+    )
+
+
+def inverse_from_dense(J: Array, sigma: float) -> Callable[[Array], Array]:
+    """``(J - sigma I)^{-1}`` applied through one LU factorisation."""
+    lu = sla.lu_factor(J - sigma * np.eye(J.shape[0]), check_finite=False)
+    return lambda v: sla.lu_solve(lu, v, check_finite=False)
+
+
+def inverse_from_sparse(J, sigma: float) -> Callable[[Array], Array]:  # noqa: ANN001
+    """``(J - sigma I)^{-1}`` for a scipy sparse ``J`` through ``splu``."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    lu = splu(sp.csc_matrix(J - sigma * sp.identity(J.shape[0], format="csc")))
+    return lu.solve
+
+
+def inverse_from_jvp(
+    jvp: Callable[[Array], Array], n: int, sigma: float, rtol: float = 1e-10
+) -> Callable[[Array], Array]:
+    """``(J - sigma I)^{-1}`` by GMRES on a matrix-free ``jvp`` (slow: last resort)."""
+    op = LinearOperator((n, n), matvec=lambda v: jvp(np.asarray(v, float).ravel()) - sigma * v)
+
+    def solve(v: Array) -> Array:
+        x, info = gmres(op, v, rtol=rtol, atol=0.0, restart=min(n, 100), maxiter=50)
+        if info != 0:
+            raise ConvergenceError(f"inverse_from_jvp: GMRES did not converge (info={info}, n={n})")
+        return x
+
+    return solve
+
+
+def complex_pairs(values: NDArray, imag_tol: float = 1e-8) -> NDArray:
+    """Members with ``Im > imag_tol * max(1, |lambda|)`` (one per conjugate pair)."""
+    v = np.asarray(values, dtype=complex)
+    return v[v.imag > imag_tol * np.maximum(1.0, np.abs(v))]

@@ -1,0 +1,165 @@
+"""Equilibria ``rhs(u, p) = 0`` of a model, as a continuable :class:`Problem`."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+
+from contfil.engine.branch import EQUILIBRIUM
+from contfil.engine.eigen import (
+    dense_stability,
+    inverse_from_dense,
+    inverse_from_jvp,
+    inverse_from_sparse,
+    shift_invert_stability,
+)
+from contfil.engine.problem_base import Problem, Stability, fd_step
+from contfil.errors import NonFiniteError, SpecError
+from contfil.models.protocol import Model, param_index
+
+Array = NDArray[np.float64]
+
+
+class EquilibriumProblem(Problem):
+    """Steady states ``u' = rhs(u, p) = 0`` continued in one named parameter.
+
+    Parameters
+    ----------
+    model:
+        Any object satisfying :class:`contfil.models.protocol.Model`.
+    param:
+        Name of the continuation parameter (one of ``model.param_names``).
+    params:
+        Full parameter vector (defaults to ``model.default_params()``); the
+        entry of ``param`` is overwritten by the continuation value.
+    dense_threshold:
+        Use dense linear algebra when ``model.dim <= dense_threshold``.
+    fd_rel:
+        Relative step of the central finite-difference Jacobian
+        (``h_j = fd_rel * (1 + |u_j|)``) used when the model has no
+        ``jacobian``. Central differences have error ``O(h^2)`` plus
+        round-off ``O(eps/h)``; ``1e-5`` balances them for smooth fields.
+    n_eigs:
+        Number of leading eigenvalues computed by shift-invert Arnoldi for
+        large (non-dense) problems.
+    eig_shift:
+        Real shift of the shift-invert Arnoldi.
+    """
+
+    kind = EQUILIBRIUM
+
+    def __init__(
+        self,
+        model: Model,
+        param: str,
+        params: Sequence[float] | Array | None = None,
+        *,
+        dense_threshold: int = 600,
+        fd_rel: float = 1e-5,
+        n_eigs: int = 10,
+        eig_shift: float = 0.0,
+    ) -> None:
+        self.model = model
+        self.param = param
+        self.ip = param_index(model, param)
+        base = model.default_params() if params is None else np.asarray(params, dtype=float)
+        base = np.array(base, dtype=float)
+        if base.shape != (len(model.param_names),):
+            raise SpecError(
+                f"EquilibriumProblem: params has shape {base.shape}, model {model.name!r} "
+                f"has {len(model.param_names)} parameters {list(model.param_names)}"
+            )
+        self.base_params = base
+        self.n = int(model.dim)
+        self.dense = self.n <= dense_threshold
+        self.fd_rel = float(fd_rel)
+        self.n_eigs = int(n_eigs)
+        self.eig_shift = float(eig_shift)
+        self.rhs_evals = 0
+        self._has_jac = callable(getattr(model, "jacobian", None))
+        self._has_sparse_jac = callable(getattr(model, "jacobian_sparse", None))
+
+    # --- helpers -----------------------------------------------------------
+    def params_at(self, p: float) -> Array:
+        """The full parameter vector with the continuation entry set to ``p``."""
+        q = self.base_params.copy()
+        q[self.ip] = p
+        return q
+
+    def residual(self, x: Array, p: float) -> Array:
+        self.rhs_evals += 1
+        return np.asarray(self.model.rhs(x, self.params_at(p)), dtype=float)
+
+    def jacobian(self, x: Array, p: float) -> Array:
+        if self._has_jac:
+            return np.asarray(self.model.jacobian(x, self.params_at(p)), dtype=float)
+        if self._has_sparse_jac:
+            return np.asarray(self.model.jacobian_sparse(x, self.params_at(p)).toarray())
+        n = x.size
+        J = np.empty((n, n))
+        h = self.fd_rel * (1.0 + np.abs(x))
+        for j in range(n):
+            e = np.zeros(n)
+            e[j] = h[j]
+            J[:, j] = (self.residual(x + e, p) - self.residual(x - e, p)) / (2.0 * h[j])
+        return J
+
+    def jvp(self, x: Array, p: float, v: Array, g0: Array | None = None) -> Array:
+        if self._has_jac and self.dense:
+            return self.jacobian(x, p) @ v
+        if self._has_sparse_jac:
+            return self.model.jacobian_sparse(x, self.params_at(p)) @ v
+        # Central difference: one more rhs call than one-sided, but O(eps^2/3)
+        # accuracy, which Krylov-based localisation of events needs.
+        eps = fd_step(x, v, rel=1e-5)
+        if eps == 0.0:
+            return np.zeros_like(x)
+        return (self.residual(x + eps * v, p) - self.residual(x - eps * v, p)) / (2.0 * eps)
+
+    def dp(self, x: Array, p: float) -> Array:
+        dpf = getattr(self.model, "dp", None)
+        if callable(dpf):
+            return np.asarray(dpf(x, self.params_at(p), self.ip), dtype=float)
+        h = self.fd_rel * (1.0 + abs(p))
+        return (self.residual(x, p + h) - self.residual(x, p - h)) / (2.0 * h)
+
+    def preconditioner(self, x: Array, p: float):  # noqa: ANN201
+        """Approximate ``G_x^{-1}`` for the matrix-free path: a sparse LU of
+        ``model.jacobian_sparse`` when the model has one, else ``None``."""
+        if not self._has_sparse_jac:
+            return None
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        lu = splu(sp.csc_matrix(self.model.jacobian_sparse(x, self.params_at(p))))
+        return lu.solve
+
+    def stability(self, x: Array, p: float, vectors: bool = False) -> Stability:
+        """Eigenvalues of ``rhs_u`` (all when dense, leading ``n_eigs`` otherwise)."""
+        if self.dense:
+            J = self.jacobian(x, p)
+            if not np.all(np.isfinite(J)):
+                raise NonFiniteError(f"Jacobian of {self.model.name!r} is not finite at {self.param}={p}")
+            return dense_stability(J, vectors=vectors)
+        k = min(self.n_eigs, self.n - 2)
+        if self._has_sparse_jac:
+            Js = self.model.jacobian_sparse(x, self.params_at(p))
+            inv = inverse_from_sparse(Js, self.eig_shift)
+            mv = lambda v: Js @ v  # noqa: E731
+        elif self._has_jac:
+            J = self.jacobian(x, p)
+            inv = inverse_from_dense(J, self.eig_shift)
+            mv = lambda v: J @ v  # noqa: E731
+        else:
+            mv = lambda v: self.jvp(x, p, v)  # noqa: E731
+            inv = inverse_from_jvp(mv, self.n, self.eig_shift)
+        return shift_invert_stability(inv, self.n, self.eig_shift, k, vectors=vectors, matvec=mv)
+
+    def state(self, x: Array) -> Array:
+        return x
+
+    def observables(self, x: Array, p: float) -> dict:
+        """Model observables at a solution (used by the driver for points)."""
+        return dict(self.model.observables(x, self.params_at(p)))

@@ -1,0 +1,238 @@
+"""Floquet multipliers by matrix-free Arnoldi on the monodromy operator.
+
+The monodromy operator of a periodic orbit ``u`` of period ``T`` is
+``M v = G Dφ_T(u) v`` (``G = exp(θL)`` for a relative periodic orbit with
+drift ``θ``, the identity otherwise). Its action needs one flow evaluation
+(finite differences) or one tangent integration; the matrix is never
+formed. Arnoldi builds ``M V_k = V_{k+1} H`` and the Ritz values of the
+square part of ``H`` approximate the multipliers of largest modulus first.
+
+Convergence criterion (the one of the filament paper): the ``nev`` leading
+Ritz values (13 by default) change by less than ``tol`` (1e-8) between two
+consecutive Arnoldi iterations. The space is exhausted exactly at ``k = n``.
+
+Trivial multipliers (``+1``, forced by the time shift along ``f(u)`` and by
+each continuous symmetry along ``L u``) are identified by their
+*eigenvectors*: the Ritz vectors with the largest projection onto
+``span{f(u), L_1 u, ...}``, as many as the rank of that span (a rotating
+wave has ``f(u) ∥ L u``: rank 1; a standing wave rank 2). Closeness to 1
+alone is not used, so a genuine multiplier crossing +1 next to a trivial one
+(a branch point of cycles) is not hidden.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from contfil.engine.problem_base import Stability
+from contfil.errors import NonFiniteError
+
+Array = NDArray[np.float64]
+
+__all__ = ["arnoldi_eigs", "flag_trivial", "floquet_multipliers"]
+
+
+def _sort_leading(vals: NDArray[np.complex128]) -> NDArray[np.intp]:
+    # by modulus, ties (complex pairs) broken by the sign of the imaginary part
+    return np.lexsort((-vals.imag, -np.round(np.abs(vals), 12)))
+
+
+def _max_change(new: NDArray[np.complex128], old: NDArray[np.complex128]) -> float:
+    """Largest distance from each new leading Ritz value to the old set."""
+    if old.size == 0:
+        return np.inf
+    return float(max(np.min(np.abs(old - z)) for z in new))
+
+
+def arnoldi_eigs(
+    matvec: Callable[[Array], Array],
+    n: int,
+    nev: int = 13,
+    tol: float = 1e-8,
+    kmax: int | None = None,
+    v0: Array | None = None,
+    seed: int = 0,
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128], dict[str, Any]]:
+    """Leading eigenvalues of a linear operator by Arnoldi (no restart).
+
+    Parameters
+    ----------
+    matvec:
+        ``v -> M v`` on ``R^n``.
+    nev:
+        Number of leading (largest modulus) eigenvalues whose Ritz values
+        must settle.
+    tol:
+        Stop when the ``nev`` leading Ritz values move by less than ``tol``
+        between consecutive iterations (or when the space is exhausted).
+    kmax:
+        Maximum Krylov dimension (default ``min(n, max(3 nev, 40))``).
+
+    Returns
+    -------
+    values, vectors, info:
+        All Ritz values of the final ``H`` sorted leading first, their Ritz
+        vectors (columns, unit norm), and ``info`` with ``iterations``
+        (= operator applications), ``converged``, ``ritz_change`` (last
+        change of the leading values) and ``residuals`` (Ritz residual
+        norms ``|M x - μ x|`` of the returned pairs).
+    """
+    nev = max(1, min(int(nev), n))
+    kmax = min(n, int(kmax) if kmax is not None else max(3 * nev, 40))
+    rng = np.random.default_rng(seed)
+    v = rng.standard_normal(n) if v0 is None else np.array(v0, dtype=float)
+    V = np.zeros((n, kmax + 1))
+    H = np.zeros((kmax + 1, kmax))
+    V[:, 0] = v / np.linalg.norm(v)
+    prev = np.zeros(0, dtype=complex)
+    change = np.inf
+    converged = False
+    k = 0
+    for j in range(kmax):
+        w = np.asarray(matvec(V[:, j]), dtype=float)
+        if not np.all(np.isfinite(w)):
+            raise NonFiniteError("arnoldi_eigs: the operator returned NaN/inf")
+        for _ in range(2):
+            for i in range(j + 1):
+                hij = float(V[:, i] @ w)
+                H[i, j] += hij
+                w -= hij * V[:, i]
+        hn = float(np.linalg.norm(w))
+        H[j + 1, j] = hn
+        k = j + 1
+        vals = np.linalg.eigvals(H[:k, :k])
+        lead = vals[_sort_leading(vals)][: min(nev, k)]
+        if k >= min(nev, n):
+            change = _max_change(lead, prev) if prev.size >= lead.size else np.inf
+        prev = lead
+        scale = max(1.0, float(np.max(np.abs(H[: k + 1, :k]))))
+        if hn <= 1e-13 * scale or k == n:
+            converged = True  # invariant subspace found: Ritz values are exact
+            change = 0.0
+            break
+        if change < tol:
+            converged = True
+            break
+        V[:, k] = w / hn
+    Hk = H[:k, :k]
+    vals, Y = np.linalg.eig(Hk)
+    order = _sort_leading(vals)
+    vals, Y = vals[order], Y[:, order]
+    X = V[:, :k] @ Y
+    X /= np.linalg.norm(X, axis=0, keepdims=True)
+    res = np.abs(H[k, k - 1] * Y[-1, :]) if k < kmax + 1 else np.zeros(k)
+    info = {
+        "iterations": k,
+        "converged": converged,
+        "ritz_change": float(change),
+        "residuals": res,
+    }
+    return vals, X, info
+
+
+def flag_trivial(
+    values: NDArray[np.complex128],
+    vectors: NDArray[np.complex128],
+    directions: Sequence[Array],
+    rank_tol: float = 1e-6,
+    min_projection: float = 0.5,
+) -> tuple[NDArray[np.bool_], dict[str, Any]]:
+    """Flag the multipliers whose eigenvectors lie in ``span(directions)``.
+
+    As many are flagged as the numerical rank of the directions (f(u) and
+    L u for each symmetry). Among the Ritz vectors, those with the largest
+    projection ``|Qᴴ x| / |x|`` are taken, provided it exceeds
+    ``min_projection``; ``info`` reports the projections and the distance
+    of the flagged values from 1 (an accuracy check, not the criterion).
+    """
+    trivial = np.zeros(len(values), dtype=bool)
+    D = np.column_stack([np.asarray(d, dtype=float) for d in directions]) if directions else None
+    if D is None or D.size == 0:
+        return trivial, {"rank": 0}
+    Q, R, _ = _qr_rank(D, rank_tol)
+    rank = Q.shape[1]
+    proj = np.linalg.norm(Q.T @ vectors, axis=0) / np.linalg.norm(vectors, axis=0)
+    order = np.argsort(-proj)
+    chosen = [i for i in order[:rank] if proj[i] >= min_projection]
+    trivial[chosen] = True
+    info = {
+        "rank": rank,
+        "projections": proj[chosen],
+        "distance_from_one": float(np.max(np.abs(values[chosen] - 1.0))) if chosen else np.nan,
+        "missing": rank - len(chosen),
+    }
+    return trivial, info
+
+
+def _qr_rank(D: Array, tol: float) -> tuple[Array, Array, int]:
+    """Orthonormal basis of ``range(D)`` after dropping dependent columns."""
+    norms = np.linalg.norm(D, axis=0)
+    cols = [D[:, j] / norms[j] for j in range(D.shape[1]) if norms[j] > 0]
+    basis: list[Array] = []
+    for c in cols:
+        w = c.copy()
+        for b in basis:
+            w -= (b @ w) * b
+        nw = float(np.linalg.norm(w))
+        if nw > np.sqrt(tol):
+            basis.append(w / nw)
+    Q = np.column_stack(basis) if basis else np.zeros((D.shape[0], 0))
+    return Q, np.zeros((0, 0)), len(basis)
+
+
+def floquet_multipliers(
+    apply_monodromy: Callable[[Array], Array],
+    n: int,
+    trivial_directions: Sequence[Array] = (),
+    nev: int = 13,
+    tol: float = 1e-8,
+    kmax: int | None = None,
+    period: float | None = None,
+    v0: Array | None = None,
+) -> Stability:
+    """Floquet multipliers of a (relative) periodic orbit, matrix-free.
+
+    Parameters
+    ----------
+    apply_monodromy:
+        ``v -> G Dφ_T(u) v``.
+    n:
+        State dimension.
+    trivial_directions:
+        ``f(u)`` and ``L u`` per continuous symmetry (see :func:`flag_trivial`).
+    nev, tol, kmax:
+        See :func:`arnoldi_eigs` (13 leading values converged to 1e-8).
+    period:
+        If given, ``info["exponents"] = log(μ)/T`` is filled.
+
+    Returns
+    -------
+    Stability
+        ``kind="multipliers"``, values sorted by decreasing modulus, trivial
+        flags, Ritz vectors (columns), ``residual`` = the largest Ritz
+        residual among the ``nev`` leading pairs, and ``info`` with
+        ``iterations`` (operator applications), ``converged``,
+        ``ritz_change``, ``trivial_info``.
+    """
+    calls = {"n": 0}
+
+    def mv(v: Array) -> Array:
+        calls["n"] += 1
+        return apply_monodromy(v)
+
+    vals, X, info = arnoldi_eigs(mv, n, nev=nev, tol=tol, kmax=kmax, v0=v0)
+    trivial, tinfo = flag_trivial(vals, X, list(trivial_directions))
+    lead = min(nev, len(vals))
+    info["operator_applications"] = calls["n"]
+    info["trivial_info"] = tinfo
+    if period is not None and period > 0:
+        with np.errstate(divide="ignore"):
+            info["exponents"] = np.log(vals.astype(complex)) / period
+    residual = float(np.max(info["residuals"][:lead])) if lead else 0.0
+    return Stability(
+        values=vals, kind="multipliers", trivial=trivial, vectors=X, residual=residual, info=info
+    )

@@ -1,0 +1,355 @@
+"""Periodic orbits and relative periodic orbits by single shooting.
+
+``PeriodicOrbitProblem``: unknowns ``x = (u, T)``, residual
+
+    G(u, T) = ( φ_T(u) - u ,  <f̂_ref, u - u_ref> ),
+
+``f̂_ref = f(u_ref)/|f(u_ref)|``: the phase condition removes the time-shift
+null direction ``f(u)`` of ``Dφ_T - I``. ``RelativePeriodicOrbitProblem``
+(models with a continuous symmetry ``exp(θL)``): ``x = (u, T, θ)``,
+
+    G = ( exp(θL) φ_T(u) - u ,  <f̂_ref, u - u_ref> ,  <L̂u_ref, u - u_ref> ),
+
+which stays non-singular on a standing wave (then θ -> 0) as well as on a
+state that drifts in angle (θ ≠ 0). ``accept`` moves ``u_ref`` to the
+accepted state, as the pseudo-arclength driver expects.
+
+Jacobian-vector products: exact tangents of the default Radau flow, or the
+model's ``flow_jvp``, or one-sided finite differences of ``flow`` (one flow
+evaluation each). Small systems may ask for the dense Jacobian
+``[[G Dφ - I, G ∂_Tφ, L G φ], [f̂ᵀ, 0, 0], [L̂uᵀ, 0, 0]]``. Stability: Floquet
+multipliers by matrix-free Arnoldi on ``v -> exp(θL) Dφ_T(u) v``
+(:mod:`contfil.engine.floquet`).
+
+Invariant subspaces (``subspace="planar"``): the orbit is solved in the
+subspace's reduced model (cheaper); stability is computed in the full model
+at the embedded orbit, so modes leaving the subspace are seen.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+from numpy.typing import NDArray
+
+from contfil.engine.branch import PERIODIC_ORBIT, RELATIVE_PERIODIC_ORBIT
+from contfil.engine.default_flow import FlowOps
+from contfil.engine.floquet import floquet_multipliers
+from contfil.engine.problem_base import Problem, Stability
+from contfil.errors import SpecError
+from contfil.models.protocol import Model, param_index
+
+Array = NDArray[np.float64]
+
+__all__ = ["PeriodicOrbitProblem", "RelativePeriodicOrbitProblem"]
+
+
+def _unit(v: Array, what: str) -> Array:
+    nv = float(np.linalg.norm(v))
+    if nv == 0.0 or not np.isfinite(nv):
+        raise SpecError(f"{what} is zero or not finite: the phase condition is undefined there")
+    return v / nv
+
+
+class PeriodicOrbitProblem(Problem):
+    """Periodic orbit ``φ_T(u) = u`` continued in one named parameter.
+
+    Parameters
+    ----------
+    model:
+        Any :class:`~contfil.models.protocol.Model`; uses ``model.flow`` if
+        present, the default Radau IIA flow otherwise.
+    param:
+        Continuation parameter name.
+    params:
+        Full parameter vector (``model.default_params()`` if None).
+    steps:
+        Steps per period of the default flow (ignored for a model's own flow).
+    subspace:
+        Name of an invariant subspace of ``model``: solve there (x holds the
+        reduced state), compute stability in the full model.
+    u_ref:
+        Reference state of the phase conditions (default: set from the first
+        residual evaluation).
+    nev, floquet_tol:
+        Leading multipliers to converge and their tolerance.
+    dense_threshold:
+        Dense Jacobian when ``n <= dense_threshold``.
+    """
+
+    kind = PERIODIC_ORBIT
+    n_extra = 1
+
+    def __init__(
+        self,
+        model: Model,
+        param: str,
+        params: Sequence[float] | Array | None = None,
+        *,
+        steps: int = 100,
+        subspace: str | None = None,
+        u_ref: Array | None = None,
+        nev: int = 13,
+        floquet_tol: float = 1e-8,
+        floquet_kmax: int | None = None,
+        dense_threshold: int = 40,
+    ) -> None:
+        self.model = model
+        self.param = param
+        self.ip = param_index(model, param)
+        base = model.default_params() if params is None else np.asarray(params, dtype=float)
+        base = np.array(base, dtype=float)
+        if base.shape != (len(model.param_names),):
+            raise SpecError(
+                f"{type(self).__name__}: params has shape {base.shape}; model {model.name!r} "
+                f"has parameters {list(model.param_names)}"
+            )
+        self.base_params = base
+        self.subspace = None
+        self.solve_model: Any = model
+        if subspace is not None:
+            subs = model.symmetries.invariant_subspaces
+            if subspace not in subs:
+                raise SpecError(
+                    f"model {model.name!r} has no invariant subspace {subspace!r}; "
+                    f"known: {list(subs)}"
+                )
+            self.subspace = subs[subspace]
+            self.solve_model = self.subspace.reduced_model()
+            if tuple(self.solve_model.param_names) != tuple(model.param_names):
+                raise SpecError(
+                    f"reduced model of subspace {subspace!r} must have the same parameters "
+                    f"as {model.name!r}"
+                )
+        self.steps = int(steps)
+        self.ops = FlowOps(self.solve_model, steps=self.steps)
+        self._full_ops: FlowOps | None = None if self.subspace is not None else self.ops
+        self.dim = int(self.solve_model.dim)
+        self.n = self.dim + self.n_extra
+        self.dense = self.n <= dense_threshold
+        self.nev = int(nev)
+        self.floquet_tol = float(floquet_tol)
+        self.floquet_kmax = floquet_kmax
+        self.u_ref: Array | None = None
+        self.f_ref: Array | None = None
+        if u_ref is not None:
+            self.set_reference(np.asarray(u_ref, dtype=float), self.base_params[self.ip])
+
+    # --- bookkeeping ---------------------------------------------------------
+    @property
+    def full_ops(self) -> FlowOps:
+        if self._full_ops is None:
+            self._full_ops = FlowOps(self.model, steps=self.steps)
+        return self._full_ops
+
+    @property
+    def flow_evals(self) -> int:
+        """Flow evaluations so far (solve model, plus the full model for stability)."""
+        extra = self._full_ops.flow_evals if self._full_ops not in (None, self.ops) else 0
+        return self.ops.flow_evals + extra
+
+    def params_at(self, p: float) -> Array:
+        """Full parameter vector with the continuation entry set to ``p``."""
+        q = self.base_params.copy()
+        q[self.ip] = p
+        return q
+
+    def set_reference(self, u: Array, p: float) -> None:
+        """Move the phase-condition reference to ``u`` (a reduced state if ``subspace``)."""
+        self.u_ref = np.array(u, dtype=float, copy=True)
+        f = np.asarray(self.solve_model.rhs(self.u_ref, self.params_at(p)), dtype=float)
+        self.f_ref = _unit(f, f"f(u_ref) of model {self.solve_model.name!r}")
+
+    def _ensure_ref(self, x: Array, p: float) -> None:
+        if self.u_ref is None:
+            self.set_reference(x[: self.dim], p)
+
+    def split(self, x: Array) -> tuple[Array, float]:
+        return x[: self.dim], float(x[self.dim])
+
+    # --- Problem interface ---------------------------------------------------
+    def residual(self, x: Array, p: float) -> Array:
+        self._ensure_ref(x, p)
+        u, T = self.split(x)
+        phi = self.ops.flow(u, self.params_at(p), T)
+        return np.concatenate([phi - u, [self.f_ref @ (u - self.u_ref)]])
+
+    def jvp(self, x: Array, p: float, v: Array, g0: Array | None = None) -> Array:
+        self._ensure_ref(x, p)
+        u, T = self.split(x)
+        vu, vT = v[: self.dim], float(v[self.dim])
+        d = self.ops.jvp(u, self.params_at(p), T, vu, vT)
+        return np.concatenate([d - vu, [self.f_ref @ vu]])
+
+    def jacobian(self, x: Array, p: float) -> Array:
+        self._ensure_ref(x, p)
+        u, T = self.split(x)
+        q = self.params_at(p)
+        n = self.dim
+        J = np.zeros((self.n, self.n))
+        J[:n, :n] = self.ops.monodromy(u, q, T) - np.eye(n)
+        J[:n, n] = self.ops.dflow_dT(u, q, T)
+        J[n, :n] = self.f_ref
+        return J
+
+    def dp(self, x: Array, p: float) -> Array:
+        h = 1e-6 * (1.0 + abs(p))
+        return (self.residual(x, p + h) - self.residual(x, p - h)) / (2 * h)
+
+    def accept(self, x: Array, p: float) -> None:
+        self.set_reference(x[: self.dim], p)
+
+    def state(self, x: Array) -> Array:
+        """The full model state at the phase origin (embedded if solved in a subspace)."""
+        u = np.array(x[: self.dim], dtype=float)
+        return np.asarray(self.subspace.embed(u), dtype=float) if self.subspace else u
+
+    def extra(self, x: Array) -> dict[str, float]:
+        return {"period": float(x[self.dim])}
+
+    def observables(self, x: Array, p: float) -> dict[str, Any]:
+        """Model observables at the phase origin, plus ``period``."""
+        obs = dict(self.model.observables(self.state(x), self.params_at(p)))
+        obs.update(self.extra(x))
+        return obs
+
+    def default_events(self) -> list:
+        """Fold, branch point, period doubling and torus of cycles."""
+        from contfil.engine.cycle_events import cycle_events
+
+        return cycle_events()
+
+    # --- stability -----------------------------------------------------------
+    def _drift_map(self, x: Array) -> Array | None:
+        return None
+
+    def trivial_directions(self, x: Array, p: float) -> list[Array]:
+        """``f(U)`` and ``L_j U`` in the full model at the full state ``U``."""
+        U = self.state(x)
+        q = self.params_at(p)
+        dirs = [np.asarray(self.model.rhs(U, q), dtype=float)]
+        dirs += [s.tangent(U) for s in self.model.symmetries.continuous]
+        return dirs
+
+    def stability(self, x: Array, p: float, vectors: bool = True) -> Stability:
+        """Floquet multipliers of the full model's monodromy (matrix-free Arnoldi)."""
+        U = self.state(x)
+        T = float(x[self.dim])
+        q = self.params_at(p)
+        ops = self.full_ops
+        G = self._drift_map(x)
+        before = ops.flow_evals + ops.tangent_evals
+
+        def apply(v: Array) -> Array:
+            w = ops.jvp(U, q, T, v)
+            return w if G is None else G @ w
+
+        st = floquet_multipliers(
+            apply,
+            U.size,
+            self.trivial_directions(x, p),
+            nev=self.nev,
+            tol=self.floquet_tol,
+            kmax=self.floquet_kmax,
+            period=T,
+        )
+        st.info["flow_evals"] = ops.flow_evals + ops.tangent_evals - before
+        st.info["exact_tangent"] = ops.exact_tangent
+        return st
+
+
+class RelativePeriodicOrbitProblem(PeriodicOrbitProblem):
+    """Relative periodic orbit ``exp(θL) φ_T(u) = u`` (``x = (u, T, θ)``).
+
+    For a model with a continuous symmetry (generator ``L`` of
+    ``model.symmetries.continuous[symmetry_index]``). A standing wave is the
+    case θ = 0; the extra phase condition ``<L u_ref, u - u_ref> = 0`` keeps
+    the Newton system non-singular there. A rotating wave (``f ∥ L u``) makes
+    this system singular: use :class:`~contfil.engine.rotating_wave.RotatingWaveProblem`.
+    """
+
+    kind = RELATIVE_PERIODIC_ORBIT
+    n_extra = 2
+
+    def __init__(
+        self,
+        model: Model,
+        param: str,
+        params: Sequence[float] | Array | None = None,
+        *,
+        symmetry_index: int = 0,
+        **kwargs: Any,
+    ) -> None:
+        sym = model.symmetries.continuous
+        if not sym:
+            raise SpecError(
+                f"RelativePeriodicOrbitProblem: model {model.name!r} declares no continuous "
+                "symmetry; use PeriodicOrbitProblem"
+            )
+        if symmetry_index >= len(sym):
+            raise SpecError(f"symmetry_index {symmetry_index} out of range ({len(sym)} symmetries)")
+        self.symmetry = sym[symmetry_index]
+        super().__init__(model, param, params, **kwargs)
+        if self.subspace is not None:
+            raise SpecError(
+                "RelativePeriodicOrbitProblem: a subspace solve has no drift; use "
+                "PeriodicOrbitProblem(subspace=...)"
+            )
+        self.L = np.asarray(self.symmetry.generator, dtype=float)
+        self._G_theta: float | None = None
+        self._G: Array | None = None
+
+    def G(self, theta: float) -> Array:
+        """``exp(θL)`` (cached for the last θ)."""
+        if self._G_theta != theta:
+            self._G = sla.expm(theta * self.L)
+            self._G_theta = theta
+        return self._G  # type: ignore[return-value]
+
+    def set_reference(self, u: Array, p: float) -> None:
+        super().set_reference(u, p)
+        self.l_ref = _unit(self.L @ self.u_ref, "L u_ref (the state is symmetric)")
+
+    def residual(self, x: Array, p: float) -> Array:
+        self._ensure_ref(x, p)
+        u, T = self.split(x)
+        th = float(x[self.dim + 1])
+        phi = self.ops.flow(u, self.params_at(p), T)
+        d = u - self.u_ref
+        return np.concatenate([self.G(th) @ phi - u, [self.f_ref @ d, self.l_ref @ d]])
+
+    def jvp(self, x: Array, p: float, v: Array, g0: Array | None = None) -> Array:
+        self._ensure_ref(x, p)
+        u, T = self.split(x)
+        th = float(x[self.dim + 1])
+        q = self.params_at(p)
+        vu, vT, vth = v[: self.dim], float(v[self.dim]), float(v[self.dim + 1])
+        G = self.G(th)
+        d = G @ self.ops.jvp(u, q, T, vu, vT)
+        if vth != 0.0:
+            d = d + vth * (self.L @ (G @ self.ops.flow(u, q, T)))
+        return np.concatenate([d - vu, [self.f_ref @ vu, self.l_ref @ vu]])
+
+    def jacobian(self, x: Array, p: float) -> Array:
+        self._ensure_ref(x, p)
+        u, T = self.split(x)
+        th = float(x[self.dim + 1])
+        q = self.params_at(p)
+        n = self.dim
+        G = self.G(th)
+        J = np.zeros((self.n, self.n))
+        J[:n, :n] = G @ self.ops.monodromy(u, q, T) - np.eye(n)
+        J[:n, n] = G @ self.ops.dflow_dT(u, q, T)
+        J[:n, n + 1] = self.L @ (G @ self.ops.flow(u, q, T))
+        J[n, :n] = self.f_ref
+        J[n + 1, :n] = self.l_ref
+        return J
+
+    def extra(self, x: Array) -> dict[str, float]:
+        return {"period": float(x[self.dim]), "drift": float(x[self.dim + 1])}
+
+    def _drift_map(self, x: Array) -> Array | None:
+        return self.G(float(x[self.dim + 1]))

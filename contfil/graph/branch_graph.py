@@ -1,0 +1,467 @@
+"""The graph of connected states: branches and the special points joining them.
+
+Design
+------
+A **bipartite directed graph** (``networkx.DiGraph``) with two node types:
+
+- *branch nodes* (``type="branch"``, ids ``B0, B1, ...``): one continued
+  family of solutions (equilibrium, rotating wave, periodic orbit, ...). The
+  node carries the whole :class:`~contfil.engine.branch.Branch` (all points
+  with state, parameters, eigenvalues, tangent and step: enough to plot it
+  or to restart continuation from any point) plus a summary: kind,
+  parameter range, stability runs along the branch, why it ended;
+- *special-point nodes* (``type="special"``, ids ``S0, S1, ...``): a
+  bifurcation (fold, branch point, Hopf, O(2) double Hopf, torus, ...) with
+  its localised point and switching data. ``switchable`` says whether the
+  explorer can leave it onto a new branch (a torus bifurcation cannot be
+  switched at yet: it stays a node, marked ``switchable=False``, for later
+  quasiperiodic tools).
+
+Edges say how they meet: ``branch -> special`` (``role="on"``, with the
+point ``index`` on the branch) when the bifurcation was detected on the
+branch; ``special -> branch`` (``role="born"``) when the branch was started
+by switching at it. A bifurcation seen from both sides (a pitchfork found on
+the trivial branch and again on the symmetric branch) is *one* node with two
+``on`` edges.
+
+Why bipartite rather than "special points as nodes, branch segments as
+edges": a branch is a first-class object users ask about (its stability, its
+points), a segmentation would split it at every special point and scatter
+its data over several edges; branches that end without a bifurcation (range
+limit, step failure) would need artificial end nodes; and "which states are
+connected to this one and through which bifurcation" is a two-hop
+neighbourhood here (:meth:`BranchGraph.connected`). The segment view is one
+projection away (:meth:`BranchGraph.state_graph`). Exports need scalar
+attributes only for GraphML; array-valued data are serialised to JSON
+strings there (:meth:`BranchGraph.to_networkx` with ``flat=True``).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import networkx as nx
+import numpy as np
+
+from contfil.engine.branch import (
+    BRANCH_POINT,
+    CYCLE_BRANCH_POINT,
+    CYCLE_FOLD,
+    DOUBLE_HOPF,
+    ENDPOINT,
+    FOLD,
+    HOPF,
+    PERIOD_DOUBLING,
+    TORUS,
+    Branch,
+    Point,
+    SpecialPoint,
+    encode,
+)
+from contfil.errors import ContfilError
+from contfil.graph.identity import IdentityTolerance, same_branch, same_special_point
+from contfil.models.protocol import Symmetries
+
+# Short labels as in AUTO/MatCont diagrams.
+SP_LABELS = {
+    FOLD: "LP",
+    BRANCH_POINT: "BP",
+    HOPF: "H",
+    DOUBLE_HOPF: "DH",
+    CYCLE_FOLD: "LPC",
+    CYCLE_BRANCH_POINT: "BPC",
+    PERIOD_DOUBLING: "PD",
+    TORUS: "NS",
+    ENDPOINT: "EP",
+}
+
+# Kinds no switching method exists for (yet): kept as dead-end nodes.
+NOT_SWITCHABLE = frozenset({TORUS, ENDPOINT})
+
+# Attributes whose values are structured (dicts/lists) and become JSON strings
+# in the flat (GraphML) form.
+_STRUCTURED = ("data", "stability", "meta")
+
+
+def stability_runs(branch: Branch) -> list[list[int]]:
+    """Runs of constant unstable-count along a branch.
+
+    Returns ``[[i_first, i_last, n_unstable], ...]`` with ``n_unstable = -1``
+    where stability was not computed.
+    """
+    runs: list[list[int]] = []
+    for i, pt in enumerate(branch.points):
+        n = -1 if pt.n_unstable is None else int(pt.n_unstable)
+        if runs and runs[-1][2] == n:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i, n])
+    return runs
+
+
+def _branch_summary(branch: Branch) -> dict[str, Any]:
+    ps = branch.parameter_values()
+    n_stable = sum(1 for pt in branch.points if pt.stable)
+    return {
+        "kind": branch.kind,
+        "param": branch.param,
+        "n_points": len(branch.points),
+        "p_min": float(ps.min()) if ps.size else float("nan"),
+        "p_max": float(ps.max()) if ps.size else float("nan"),
+        "n_stable_points": int(n_stable),
+        "end_reason": str(branch.meta.get("end_reason", "")),
+        "name": str(branch.meta.get("name", "")),
+    }
+
+
+class BranchGraph:
+    """Branches and special points of one study, see the module docstring.
+
+    Parameters
+    ----------
+    symmetries:
+        The model's symmetries, used by the identity tests (two routes to
+        one state up to symmetry give one branch).
+    tol:
+        Branch-identity tolerances.
+    meta:
+        Study-level data (model name, parameter, spec); exported as graph
+        attributes.
+    """
+
+    def __init__(
+        self,
+        symmetries: Symmetries | None = None,
+        tol: IdentityTolerance | None = None,
+        meta: dict[str, Any] | None = None,
+    ) -> None:
+        self.symmetries = symmetries
+        self.tol = tol or IdentityTolerance()
+        self.meta: dict[str, Any] = dict(meta or {})
+        self.g = nx.DiGraph()
+        self._branches: dict[str, Branch] = {}
+        self._sps: dict[str, SpecialPoint] = {}
+        self._label_count: dict[str, int] = {}
+
+    # ----------------------------------------------------------------- access
+    @property
+    def branches(self) -> dict[str, Branch]:
+        """Branch id -> :class:`Branch` (insertion order)."""
+        return dict(self._branches)
+
+    @property
+    def special_points(self) -> dict[str, SpecialPoint]:
+        """Special-point id -> :class:`SpecialPoint` (insertion order)."""
+        return dict(self._sps)
+
+    def branch(self, bid: str) -> Branch:
+        """The branch with id ``bid``."""
+        try:
+            return self._branches[bid]
+        except KeyError:
+            raise ContfilError(f"no branch {bid!r}; known: {list(self._branches)}") from None
+
+    def special_point(self, sid: str) -> SpecialPoint:
+        """The special point with id ``sid``."""
+        try:
+            return self._sps[sid]
+        except KeyError:
+            raise ContfilError(f"no special point {sid!r}; known: {list(self._sps)}") from None
+
+    def point(self, bid: str, index: int) -> Point:
+        """Point ``index`` of branch ``bid``: state, parameters, tangent and
+        step size, i.e. what is needed to restart continuation there."""
+        return self.branch(bid).points[index]
+
+    def __len__(self) -> int:
+        return len(self._branches)
+
+    # ------------------------------------------------------------- building
+    def find_branch(self, branch: Branch, exclude: set[str] | None = None) -> str | None:
+        """Id of a stored branch identical to ``branch`` (up to symmetry), if any."""
+        for bid, other in self._branches.items():
+            if exclude and bid in exclude:
+                continue
+            if same_branch(other, branch, self.symmetries, self.tol):
+                return bid
+        return None
+
+    def add_branch(
+        self, branch: Branch, *, dedup: bool = True, bid: str | None = None
+    ) -> tuple[str, bool]:
+        """Add a branch; returns ``(id, is_new)``.
+
+        With ``dedup`` a branch identical to a stored one is not added and
+        the stored one's id is returned with ``is_new=False``.
+        """
+        if dedup:
+            found = self.find_branch(branch)
+            if found is not None:
+                return found, False
+        bid = bid or f"B{len(self._branches)}"
+        if bid in self._branches:
+            raise ContfilError(f"branch id {bid!r} already used")
+        self._branches[bid] = branch
+        self.g.add_node(bid, type="branch", **_branch_summary(branch))
+        return bid, True
+
+    def update_branch(self, bid: str, branch: Branch) -> None:
+        """Replace the data of branch ``bid`` (e.g. after it grew)."""
+        self._branches[bid] = branch
+        self.g.nodes[bid].update(_branch_summary(branch))
+
+    def _new_label(self, kind: str) -> str:
+        base = SP_LABELS.get(kind, kind.upper())
+        self._label_count[base] = self._label_count.get(base, 0) + 1
+        return f"{base}{self._label_count[base]}"
+
+    def find_special_point(self, sp: SpecialPoint) -> str | None:
+        """Id of a stored special point that is the same bifurcation as ``sp``."""
+        for sid, other in self._sps.items():
+            if same_special_point(other, sp, self.symmetries):
+                return sid
+        return None
+
+    def add_special_point(
+        self, bid: str, sp: SpecialPoint, *, switchable: bool | None = None,
+        dedup: bool = True,
+    ) -> tuple[str, bool]:
+        """Attach special point ``sp`` detected on branch ``bid``.
+
+        Returns ``(id, is_new)``; a bifurcation already known (seen from
+        another branch) gets one more ``on`` edge instead of a new node.
+        ``switchable`` defaults to ``sp.data["switchable"]`` when present,
+        else to whether the kind is one we can switch at.
+        """
+        if bid not in self._branches:
+            raise ContfilError(f"no branch {bid!r} to attach a special point to")
+        sid = self.find_special_point(sp) if dedup else None
+        is_new = sid is None
+        if sid is None:
+            sid = f"S{len(self._sps)}"
+            self._sps[sid] = sp
+            if switchable is None:
+                switchable = bool(sp.data.get("switchable", sp.kind not in NOT_SWITCHABLE))
+            self.g.add_node(
+                sid,
+                type="special",
+                kind=sp.kind,
+                label=self._new_label(sp.kind),
+                p=float(sp.point.p),
+                switchable=bool(switchable),
+                switched=False,
+                stable=sp.point.stable if sp.point.stable is not None else False,
+            )
+        if not self.g.has_edge(bid, sid):
+            self.g.add_edge(bid, sid, role="on", index=int(sp.index))
+        return sid, is_new
+
+    def link(self, sid: str, bid: str) -> None:
+        """Record that branch ``bid`` was reached by switching at ``sid``
+        (each extra route to the same branch increments ``routes``)."""
+        if self.g.has_edge(sid, bid):
+            self.g.edges[sid, bid]["routes"] += 1
+        else:
+            self.g.add_edge(sid, bid, role="born", routes=1)
+
+    def mark_switched(self, sid: str) -> None:
+        """Remember that the explorer has already switched at ``sid``."""
+        self.g.nodes[sid]["switched"] = True
+
+    # -------------------------------------------------------------- queries
+    def branch_ids(self) -> list[str]:
+        return list(self._branches)
+
+    def special_ids(self) -> list[str]:
+        return list(self._sps)
+
+    def special_points_on(self, bid: str) -> list[str]:
+        """Special points detected on branch ``bid`` (ordered by index)."""
+        out = [(d["index"], s) for _, s, d in self.g.out_edges(bid, data=True)
+               if d.get("role") == "on"]
+        return [s for _, s in sorted(out)]
+
+    def branches_at(self, sid: str) -> list[str]:
+        """All branches meeting at special point ``sid`` (detected on or born there)."""
+        on = [b for b, _ in self.g.in_edges(sid)]
+        born = [b for _, b in self.g.out_edges(sid)]
+        return list(dict.fromkeys(on + born))
+
+    def connected(self, bid: str) -> list[tuple[str, str]]:
+        """States connected to ``bid``: ``[(other_branch, via_special_point), ...]``."""
+        out = []
+        for sid in self.special_points_on(bid) + [s for s, _ in self.g.in_edges(bid)]:
+            for other in self.branches_at(sid):
+                if other != bid and (other, sid) not in out:
+                    out.append((other, sid))
+        return out
+
+    def state_graph(self) -> nx.MultiGraph:
+        """Projection: branches as nodes, one edge per bifurcation joining two.
+
+        Edge attributes: ``key`` and ``label``/``kind``/``p`` of the special
+        point. Handy for "which states are connected" at a glance.
+        """
+        G = nx.MultiGraph()
+        for bid in self._branches:
+            G.add_node(bid, **dict(self.g.nodes[bid]))
+        for sid in self._sps:
+            at = self.branches_at(sid)
+            attrs = {k: self.g.nodes[sid][k] for k in ("kind", "label", "p")}
+            for i, a in enumerate(at):
+                for b in at[i + 1:]:
+                    G.add_edge(a, b, key=sid, **attrs)
+        return G
+
+    def summary(self) -> str:
+        """A short human-readable listing."""
+        lines = []
+        for bid, br in self._branches.items():
+            a = self.g.nodes[bid]
+            lines.append(
+                f"{bid} {br.kind:<16} {br.param} in [{a['p_min']:.6g}, {a['p_max']:.6g}]"
+                f"  {a['n_points']} points, {a['n_stable_points']} stable"
+                + (f"  ({a['end_reason']})" if a["end_reason"] else "")
+            )
+            for sid in self.special_points_on(bid):
+                s = self.g.nodes[sid]
+                born = [b for _, b in self.g.out_edges(sid)]
+                lines.append(
+                    f"    {s['label']:<5} {s['kind']:<18} {br.param}={s['p']:.8g}"
+                    + ("" if s["switchable"] else "  (not switchable)")
+                    + (f"  -> {', '.join(born)}" if born else "")
+                )
+        return "\n".join(lines)
+
+    # --------------------------------------------------------------- export
+    def to_networkx(self, flat: bool = False) -> nx.DiGraph:
+        """A self-contained networkx graph carrying all data.
+
+        ``flat=False``: attributes are JSON-compatible (nested dicts/lists),
+        for node-link JSON. ``flat=True``: only scalars (str/int/float/bool),
+        structured data serialised as JSON strings, for GraphML.
+        """
+        G = nx.DiGraph()
+        G.graph.update(_json_safe(self.meta))
+        for n, attrs in self.g.nodes(data=True):
+            a = dict(attrs)
+            if a["type"] == "branch":
+                br = self._branches[n]
+                a["data"] = br.to_dict()
+                a["stability"] = stability_runs(br)
+            else:
+                a["data"] = self._sps[n].to_dict()
+            G.add_node(n, **_json_safe(a))
+        for u, v, attrs in self.g.edges(data=True):
+            G.add_edge(u, v, **_json_safe(dict(attrs)))
+        if flat:
+            _flatten(G)
+        return G
+
+    @classmethod
+    def from_networkx(
+        cls, G: nx.Graph, symmetries: Symmetries | None = None,
+        tol: IdentityTolerance | None = None,
+    ) -> BranchGraph:
+        """Rebuild from :meth:`to_networkx` output (flat or not)."""
+        G = G.copy()
+        _unflatten(G)
+        meta = {k: v for k, v in G.graph.items() if k not in ("node_default", "edge_default")}
+        bg = cls(symmetries=symmetries, tol=tol, meta=meta)
+        for n, a in G.nodes(data=True):
+            n = str(n)
+            if a.get("type") == "branch":
+                br = Branch.from_dict(a["data"])
+                bg._branches[n] = br
+                attrs = {k: v for k, v in a.items() if k not in ("data", "stability")}
+                bg.g.add_node(n, **attrs)
+            elif a.get("type") == "special":
+                bg._sps[n] = SpecialPoint.from_dict(a["data"])
+                bg.g.add_node(n, **{k: v for k, v in a.items() if k != "data"})
+                base = "".join(c for c in a["label"] if not c.isdigit())
+                bg._label_count[base] = bg._label_count.get(base, 0) + 1
+            else:
+                raise ContfilError(f"graph node {n!r} has unknown type {a.get('type')!r}")
+        for u, v, a in G.edges(data=True):
+            bg.g.add_edge(str(u), str(v), **a)
+        return bg
+
+    def to_json_data(self) -> dict[str, Any]:
+        """Node-link data (``networkx.node_link_data``) of the full graph."""
+        return nx.node_link_data(self.to_networkx(flat=False), edges="edges")
+
+    def save_json(self, path: str | Path) -> Path:
+        """Write node-link JSON (atomically) and return the path."""
+        from contfil.io.atomic import atomic_write_text
+
+        return atomic_write_text(path, json.dumps(self.to_json_data(), allow_nan=True))
+
+    @classmethod
+    def load_json(cls, path: str | Path, symmetries: Symmetries | None = None) -> BranchGraph:
+        """Read a graph written by :meth:`save_json`."""
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+        return cls.from_networkx(nx.node_link_graph(data, directed=True, multigraph=False,
+                                                    edges="edges"), symmetries)
+
+    def save_graphml(self, path: str | Path) -> Path:
+        """Write GraphML (scalar attributes; arrays as JSON strings)."""
+        from contfil.io.atomic import atomic_write_bytes
+
+        buf = "\n".join(nx.generate_graphml(self.to_networkx(flat=True)))
+        return atomic_write_bytes(path, buf.encode("utf-8"))
+
+    @classmethod
+    def load_graphml(cls, path: str | Path, symmetries: Symmetries | None = None) -> BranchGraph:
+        """Read a graph written by :meth:`save_graphml`."""
+        return cls.from_networkx(nx.read_graphml(path), symmetries)
+
+    def iter_points(self) -> Iterator[tuple[str, int, Point]]:
+        """All ``(branch_id, index, point)`` triples."""
+        for bid, br in self._branches.items():
+            for i, pt in enumerate(br.points):
+                yield bid, i, pt
+
+
+def _json_safe(a: dict[str, Any]) -> dict[str, Any]:
+    out = {}
+    for k, v in a.items():
+        v = encode(v)
+        if isinstance(v, np.generic):
+            v = v.item()
+        out[str(k)] = v
+    return out
+
+
+def _flatten(G: nx.DiGraph) -> None:
+    """Make every attribute a GraphML scalar: structured values -> JSON strings."""
+
+    def flat(d: dict[str, Any]) -> None:
+        for k in list(d):
+            v = d[k]
+            if v is None:
+                del d[k]  # GraphML has no null
+            elif isinstance(v, dict | list | tuple):
+                d[k] = "json:" + json.dumps(v, allow_nan=True)
+
+    flat(G.graph)
+    for _, a in G.nodes(data=True):
+        flat(a)
+    for _, _, a in G.edges(data=True):
+        flat(a)
+
+
+def _unflatten(G: nx.Graph) -> None:
+    def unflat(d: dict[str, Any]) -> None:
+        for k, v in list(d.items()):
+            if isinstance(v, str) and v.startswith("json:"):
+                d[k] = json.loads(v[5:])
+
+    unflat(G.graph)
+    for _, a in G.nodes(data=True):
+        unflat(a)
+    for _, _, a in G.edges(data=True):
+        unflat(a)

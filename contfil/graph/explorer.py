@@ -1,0 +1,395 @@
+"""The automatic explorer: continue, switch at every bifurcation, repeat.
+
+From a root seed the explorer continues a branch; at each special point of a
+kind it is told to follow and for which a switcher is registered it asks the
+switcher for seeds of the branches leaving it, and continues those, breadth
+first, up to ``depth`` switches from the root. Each new branch is checked
+against the graph with the branch-identity test, so a state reached by two
+routes is stored once (the second route only adds a ``born`` edge). The
+test also runs early, after ``dedup_after`` points, so a duplicate is
+abandoned before it is computed in full.
+
+Every accepted point goes to the run store as it is accepted. The exploration
+is deterministic, so a resumed run replays it: finished tasks are read back
+from their logs instead of being recomputed, the unfinished one is continued
+from its last stored point (the continuer restores the iterator state from
+it: last points, tangent, step size), and the rest is computed as normal.
+
+The continuation itself is pluggable (:class:`Continuer`): the engine adapter
+in :mod:`contfil.graph.engine_adapter` is the production one; tests may use
+any iterator of :class:`Step`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from contfil.engine.branch import Branch, Point, SpecialPoint
+from contfil.errors import ContfilError
+from contfil.graph.branch_graph import BranchGraph
+from contfil.graph.identity import IdentityTolerance
+from contfil.graph.seeds import Seed, SwitcherRegistry
+from contfil.io.store import RunStore, TaskRecords
+
+
+@dataclass
+class Step:
+    """One accepted continuation step.
+
+    ``specials`` are the special points localised between the previous
+    accepted point and this one; their ``index`` counts points of the
+    current segment (resumed points included). ``state`` is optional extra
+    iterator state (JSON-able) the continuer wants back on resume.
+    """
+
+    point: Point
+    x: np.ndarray
+    specials: list[SpecialPoint] = field(default_factory=list)
+    state: dict[str, Any] = field(default_factory=dict)
+
+
+class Continuer(Protocol):
+    """``continuer(seed, direction, settings, resume) -> iterable of Step``.
+
+    ``resume`` is ``None`` for a fresh start, else the stored records of the
+    task; the continuer then yields only the points *after* the last stored
+    one. The returned object may carry ``end_reason`` (str) once exhausted.
+    """
+
+    def __call__(
+        self, seed: Seed, direction: int, settings: Any, resume: TaskRecords | None
+    ) -> Iterable[Step]: ...
+
+
+@dataclass
+class ExplorerSettings:
+    """What the explorer follows and how far.
+
+    Attributes
+    ----------
+    depth:
+        Maximum number of switches from the root branch (0: root only).
+    kinds:
+        Special-point kinds to switch at (``None``: every kind with a switcher).
+    both_directions:
+        Continue switched branches both ways from their seed (a pitchfork's
+        seed then yields the whole symmetric branch, through the branch point).
+    max_branches:
+        Safety cap on the number of continuation tasks.
+    p_range:
+        Parameter window; points outside end the segment.
+    max_points:
+        Points per segment (one direction of one branch).
+    dedup_after:
+        Run the identity test after this many points of a new branch.
+    """
+
+    depth: int = 1
+    kinds: tuple[str, ...] | None = None
+    both_directions: bool = True
+    max_branches: int = 50
+    p_range: tuple[float, float] = (-np.inf, np.inf)
+    max_points: int = 200
+    dedup_after: int = 6
+
+
+class Progress:
+    """One status line on a TTY (stderr): branch, parameter, points, events,
+    elapsed time. Silent when the stream is not a terminal."""
+
+    def __init__(self, stream: Any = None, enabled: bool | None = None,
+                 min_interval: float = 0.1) -> None:
+        import sys
+
+        self.stream = stream if stream is not None else sys.stderr
+        isatty = getattr(self.stream, "isatty", lambda: False)
+        self.enabled = bool(isatty()) if enabled is None else enabled
+        self.t0 = time.monotonic()
+        self._last = 0.0
+        self.min_interval = min_interval
+
+    def update(self, task: str, kind: str, param: str, p: float, n_points: int,
+               n_events: int, force: bool = False) -> None:
+        if not self.enabled:
+            return
+        now = time.monotonic()
+        if not force and now - self._last < self.min_interval:
+            return
+        self._last = now
+        el = now - self.t0
+        line = (f"{task} {kind:<14} {param}={p:<12.6g} points={n_points:<5d} "
+                f"events={n_events:<3d} {int(el // 60):02d}:{el % 60:05.2f}")
+        self.stream.write("\r" + line[:120].ljust(80))
+        self.stream.flush()
+
+    def message(self, text: str) -> None:
+        if self.enabled:
+            self.stream.write("\r" + " " * 80 + "\r" + text + "\n")
+            self.stream.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+@dataclass
+class _Task:
+    seed: Seed
+    depth: int
+    parent: str | None
+
+
+class Explorer:
+    """Breadth-first exploration of a bifurcation diagram.
+
+    Parameters
+    ----------
+    root:
+        Seed of the first branch.
+    continuer:
+        Produces the accepted steps of one segment (see :class:`Continuer`).
+    settings:
+        :class:`ExplorerSettings`.
+    switchers:
+        Special-point kind -> seeds (:class:`SwitcherRegistry`).
+    continuation_settings:
+        Passed through to the continuer untouched.
+    store:
+        Where to persist (``None``: in memory only).
+    symmetries, tol:
+        For the identity tests.
+    progress:
+        A :class:`Progress` (default: on when stderr is a TTY).
+    on_branch:
+        Optional callback ``f(graph, bid)`` after each finished branch.
+    """
+
+    def __init__(
+        self,
+        root: Seed,
+        continuer: Continuer,
+        settings: ExplorerSettings | None = None,
+        switchers: SwitcherRegistry | None = None,
+        continuation_settings: Any = None,
+        store: RunStore | None = None,
+        symmetries: Any = None,
+        tol: IdentityTolerance | None = None,
+        progress: Progress | None = None,
+        on_branch: Callable[[BranchGraph, str], None] | None = None,
+        meta: dict[str, Any] | None = None,
+    ) -> None:
+        self.root = root
+        self.continuer = continuer
+        self.settings = settings or ExplorerSettings()
+        self.switchers = switchers or SwitcherRegistry()
+        self.cont_settings = continuation_settings
+        self.store = store
+        self.graph = BranchGraph(symmetries=symmetries, tol=tol, meta=meta)
+        self.progress = progress or Progress()
+        self.on_branch = on_branch
+        self.problems: dict[str, Any] = {}  # branch id -> problem (for restarts)
+        self.n_computed_points = 0  # points computed now (not read back)
+        self.n_tasks = 0
+        self._dedup_done: dict[int, bool] = {}
+
+    # ------------------------------------------------------------------ run
+    def run(self) -> BranchGraph:
+        """Explore and return the graph."""
+        s = self.settings
+        queue: deque[_Task] = deque([_Task(self.root, 0, None)])
+        k = 0
+        while queue:
+            if k >= s.max_branches:
+                self.progress.message(f"explorer: stopped at max_branches={s.max_branches}")
+                break
+            task = queue.popleft()
+            branch, dup_of = self._branch_from_seed(k, task)
+            k += 1
+            if dup_of is None and not branch.points:
+                # Nothing converged from this seed: keep a trace in the store only.
+                if self.store:
+                    self.store.set_task(f"T{k - 1:04d}", failed=branch.meta.get("end_reason"))
+                continue
+            if dup_of is not None:
+                bid, is_new = dup_of, False
+            else:
+                bid, is_new = self.graph.add_branch(branch)
+            if task.parent is not None:
+                self.graph.link(task.parent, bid)
+            if not is_new:
+                if self.store:
+                    self.store.set_task(f"T{k - 1:04d}", duplicate_of=bid)
+                continue
+            self.problems[bid] = task.seed.problem
+            branch.meta.setdefault("origin", task.seed.label or "root")
+            branch.meta.setdefault("depth", task.depth)
+            self.graph.update_branch(bid, branch)
+            for sp in branch.special_points:
+                sid, sp_new = self.graph.add_special_point(bid, sp)
+                node = self.graph.g.nodes[sid]
+                if not sp_new or node["switched"] or not node["switchable"]:
+                    continue
+                if sp.kind not in self.switchers:
+                    continue
+                if s.kinds is not None and sp.kind not in s.kinds:
+                    continue
+                if task.depth >= s.depth:
+                    continue
+                seeds = self.switchers.seeds(sp, branch, task.seed.problem)
+                self.graph.mark_switched(sid)
+                for j, sd in enumerate(seeds):
+                    if not sd.label:
+                        sd.label = f"{node['label']}#{j}"
+                    queue.append(_Task(sd, task.depth + 1, sid))
+            if self.store:
+                self.store.save_graph(self.graph)
+                self.store.set_task(f"T{k - 1:04d}", branch=bid)
+            if self.on_branch:
+                self.on_branch(self.graph, bid)
+        self.n_tasks = k
+        self.progress.close()
+        return self.graph
+
+    # ------------------------------------------------------------ branches
+    def _branch_from_seed(self, k: int, task: _Task) -> tuple[Branch, str | None]:
+        seed = task.seed
+        both = self.settings.both_directions if seed.both_directions is None else (
+            seed.both_directions)
+        if task.parent is None and seed.both_directions is None:
+            both = False  # the root goes where the spec says
+        dirs = [seed.direction, -seed.direction] if both else [seed.direction]
+        segments: list[tuple[list[Point], list[SpecialPoint], str]] = []
+        dup: str | None = None
+        for d in dirs:
+            pts, sps, reason = self._segment(k, d, seed, task, check_dup=not segments)
+            segments.append((pts, sps, reason))
+            if reason.startswith("duplicate:"):
+                dup = reason.split(":", 1)[1]
+                break
+        branch = _join(seed, segments, self._param_name(seed))
+        return branch, dup
+
+    def _param_name(self, seed: Seed) -> str:
+        return str(getattr(seed.problem, "param", self.graph.meta.get("param", "p")))
+
+    def _stop_reason(
+        self, points: list[Point], seed: Seed, task: _Task, check_dup: bool
+    ) -> str | None:
+        """Why the segment must end after ``points`` (``None``: go on).
+
+        Called after every point *and* on resume, so a run killed between
+        storing a last point and its end record ends the same way.
+        """
+        s = self.settings
+        if not points:
+            return None
+        lo, hi = s.p_range
+        if not lo <= points[-1].p <= hi:
+            return "range"
+        if len(points) >= s.max_points:
+            return "max_points"
+        if check_dup and task.parent is not None and len(points) >= s.dedup_after:
+            # Test once, at exactly dedup_after points (the same on resume).
+            partial = Branch(kind=seed.kind, param=self._param_name(seed),
+                             points=list(points[: s.dedup_after]))
+            if len(points) == s.dedup_after or not self._dedup_done.get(id(task)):
+                self._dedup_done[id(task)] = True
+                found = self.graph.find_branch(partial)
+                if found is not None:
+                    return f"duplicate:{found}"
+        return None
+
+    def _segment(
+        self, k: int, direction: int, seed: Seed, task: _Task, check_dup: bool
+    ) -> tuple[list[Point], list[SpecialPoint], str]:
+        name = f"T{k:04d}{'+' if direction > 0 else '-'}"
+        log = self.store.task(k, direction) if self.store else None
+        resume: TaskRecords | None = None
+        points: list[Point] = []
+        specials: list[SpecialPoint] = []
+        if log is not None:
+            recs = log.open()
+            if recs.header is not None:
+                _check_seed(name, recs.header, seed, direction)
+                points, specials = list(recs.points), list(recs.specials)
+                if recs.finished:
+                    log.close()
+                    return points, specials, str(recs.end)
+                resume = recs if recs.points else None
+            else:
+                log.header(seed.fingerprint(), direction)
+        reason = self._stop_reason(points, seed, task, check_dup)
+        try:
+            if reason is None:
+                steps = self.continuer(seed, direction, self.cont_settings, resume)
+                for step in steps:
+                    pt = step.point
+                    points.append(pt)
+                    specials.extend(step.specials)
+                    self.n_computed_points += 1
+                    if log is not None:
+                        log.point(pt, step.x, step.state, step.specials)
+                    self.progress.update(name, seed.kind, self._param_name(seed), pt.p,
+                                         len(points), len(specials))
+                    reason = self._stop_reason(points, seed, task, check_dup)
+                    if reason is not None:
+                        break
+                else:
+                    reason = str(getattr(steps, "end_reason", "") or "stopped")
+        except ContfilError as exc:
+            # A failed step ends the segment, it does not lose the branch.
+            reason = f"error: {exc}"
+            self.progress.message(f"{name}: {reason}")
+        if log is not None:
+            log.end(reason)
+            log.close()
+        return points, specials, reason
+
+
+def _check_seed(name: str, header: dict[str, Any], seed: Seed, direction: int) -> None:
+    old = header.get("seed", {})
+    new = seed.fingerprint()
+    same = old.get("kind") == new["kind"] and header.get("direction") == direction
+    for key in ("p0", "x0_norm", "x0_sum"):
+        a, b = float(old.get(key, np.nan)), new[key]
+        same = same and abs(a - b) <= 1e-9 * (1.0 + abs(a))
+    if not same:
+        raise ContfilError(
+            f"resume: task {name} was started from a different seed ({old}) than now ({new}); "
+            "the model or code changed since the run was started"
+        )
+
+
+def _join(seed: Seed, segments: list[tuple[list[Point], list[SpecialPoint], str]],
+          param: str) -> Branch:
+    """One branch from the segments of a seed (second one reversed in front)."""
+    kind = seed.kind
+    first_pts, first_sps, first_reason = segments[0]
+    meta: dict[str, Any] = {"end_reason": first_reason, "seed": seed.label or "root"}
+    if len(segments) == 1:
+        return Branch(kind=kind, param=param, points=list(first_pts),
+                      special_points=list(first_sps), meta=meta)
+    back_pts, back_sps, back_reason = segments[1]
+    # Both segments start at the corrected seed: drop one copy.
+    shared = bool(back_pts and first_pts and
+                  np.allclose(back_pts[0].u, first_pts[0].u, atol=1e-10, rtol=1e-8)
+                  and abs(back_pts[0].p - first_pts[0].p) <= 1e-12 * (1 + abs(first_pts[0].p)))
+    rev = list(reversed(back_pts))
+    nb = len(rev)
+    points = rev + (first_pts[1:] if shared else first_pts)
+    offset = nb - 1 if shared else nb
+    sps = []
+    for sp in back_sps:
+        sps.append(SpecialPoint(sp.kind, sp.point, max(0, nb - 2 - sp.index), sp.data))
+    for sp in first_sps:
+        sps.append(SpecialPoint(sp.kind, sp.point, sp.index + offset, sp.data))
+    sps.sort(key=lambda s: s.index)
+    meta["end_reason"] = f"{back_reason} | {first_reason}"
+    return Branch(kind=kind, param=param, points=points, special_points=sps, meta=meta)

@@ -1,0 +1,294 @@
+"""When are two computed branches (or special points) the same state?
+
+Two routes through a bifurcation diagram often reach one branch: the two
+seeds of a pitchfork, a branch point found again from the new branch, the
+two rotation senses of a whirling filament. The explorer asks
+:func:`same_branch` before it adds a branch, so the graph holds each state
+once.
+
+The test works on curves, not single points. Equilibria and rotating waves
+are compared state-by-state in ``(u, p)`` (``omega`` appended for rotating
+waves) *modulo the declared symmetries*: a continuous group (rotation about
+e3, generator ``L``) is quotiented out by minimising over the group angle,
+and every declared reflection is tried. Periodic orbits are stored at an
+arbitrary phase origin, so two routes to the same orbit give different
+``u``; they are compared through phase-invariant signatures instead
+(parameter, period, drift and the period-averaged observables).
+
+Two distinct branches may cross (at the very bifurcation that links them),
+so a handful of near points is no proof: the test asks that at least
+``min_fraction`` of the points of the shorter branch lie on the other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from contfil.engine.branch import (
+    EQUILIBRIUM,
+    PERIODIC_ORBIT,
+    RELATIVE_PERIODIC_ORBIT,
+    ROTATING_WAVE,
+    Branch,
+    Point,
+    SpecialPoint,
+)
+from contfil.models.protocol import Symmetries
+
+Array = NDArray[np.float64]
+
+CYCLE_KINDS = frozenset({PERIODIC_ORBIT, RELATIVE_PERIODIC_ORBIT})
+STATE_KINDS = frozenset({EQUILIBRIUM, ROTATING_WAVE})
+
+
+@dataclass(frozen=True)
+class IdentityTolerance:
+    """Tolerances of the branch-identity test.
+
+    ``rtol``/``atol`` scale the distance a point may sit off the other
+    curve; ``chord`` adds a fraction of the other curve's median step
+    (points of one smooth curve sit off the chords of another sampling of
+    it by ~curvature*ds^2/8); ``min_fraction`` is the share of points that
+    must agree.
+    """
+
+    rtol: float = 1e-3
+    atol: float = 1e-6
+    chord: float = 0.25
+    min_fraction: float = 0.5
+
+
+def _state_vector(pt: Point) -> Array:
+    u = np.asarray(pt.u, dtype=float)
+    if pt.kind == ROTATING_WAVE and "omega" in pt.extra:
+        return np.concatenate([u, [float(pt.extra["omega"])]])
+    return u
+
+
+def _cycle_signature(pt: Point) -> Array:
+    vals = [float(pt.p)]
+    for key in ("period", "drift"):
+        if key in pt.extra:
+            vals.append(float(pt.extra[key]))
+    for key in sorted(pt.observables):
+        v = pt.observables[key]
+        if isinstance(v, int | float | np.floating | np.integer) and not isinstance(v, bool):
+            vals.append(float(v))
+    return np.asarray(vals, dtype=float)
+
+
+def _segment_distance(q: Array, a: Array, b: Array) -> float:
+    """Euclidean distance of ``q`` to the segment ``[a, b]``."""
+    d = b - a
+    dd = float(d @ d)
+    t = 0.0 if dd == 0.0 else min(1.0, max(0.0, float((q - a) @ d) / dd))
+    return float(np.linalg.norm(q - (a + t * d)))
+
+
+def _curve_distance(q: Array, curve: Array) -> float:
+    """Distance of ``q`` to the polyline through the rows of ``curve``."""
+    if len(curve) == 1:
+        return float(np.linalg.norm(q - curve[0]))
+    return min(_segment_distance(q, curve[i], curve[i + 1]) for i in range(len(curve) - 1))
+
+
+class _Orbit:
+    """Representatives of the symmetry-group orbit of a state, for distances."""
+
+    def __init__(self, symmetries: Symmetries | None, dim: int) -> None:
+        self.reflections: list[Array] = [np.eye(dim)]
+        self.generators: list[tuple[Array, float]] = []
+        if symmetries is None:
+            return
+        for R in symmetries.reflections.values():
+            R = np.asarray(R, dtype=float)
+            if R.shape == (dim, dim):
+                self.reflections.append(R)
+        for cs in symmetries.continuous:
+            L = np.asarray(cs.generator, dtype=float)
+            if L.shape == (dim, dim):
+                self.generators.append((L, cs.period or 2 * np.pi))
+
+    def extended(self) -> _Orbit:
+        """The same group acting on ``(u, omega)``: omega is invariant under
+        rotations and may change sign under reflections."""
+        out = _Orbit(None, 1)
+        out.reflections = [_extend(R, s) for R in self.reflections for s in (1.0, -1.0)]
+        out.generators = [(_extend(L, 0.0), per) for L, per in self.generators]
+        return out
+
+    def distance(self, u: Array, p: float, curve: Array, scale: Array) -> float:
+        """Smallest distance from any symmetric copy of ``(u, p)`` to ``curve``."""
+        best = np.inf
+        for R in self.reflections:
+            v = R @ u
+            best = min(best, _curve_distance(np.concatenate([v, [p]]) / scale, curve))
+            for L, period in self.generators:
+                best = min(best, self._min_over_angle(v, p, L, period, curve, scale))
+        return best
+
+    @staticmethod
+    def _min_over_angle(
+        v: Array, p: float, L: Array, period: float, curve: Array, scale: Array
+    ) -> float:
+        from scipy.linalg import expm
+        from scipy.optimize import minimize_scalar
+
+        def f(theta: float) -> float:
+            w = expm(theta * L) @ v
+            return _curve_distance(np.concatenate([w, [p]]) / scale, curve)
+
+        # A coarse grid finds the basin, a bounded scalar search refines it.
+        grid = np.linspace(0.0, period, 17)[:-1]
+        vals = [f(t) for t in grid]
+        k = int(np.argmin(vals))
+        h = period / 16
+        res = minimize_scalar(f, bounds=(grid[k] - h, grid[k] + h), method="bounded",
+                              options={"xatol": 1e-6 * period})
+        return float(min(vals[k], res.fun))
+
+
+def _curve(branch: Branch) -> Array:
+    return np.array([np.concatenate([_state_vector(pt), [pt.p]]) for pt in branch.points])
+
+
+def _sample(points: Sequence[Point], max_samples: int) -> list[Point]:
+    if len(points) <= max_samples:
+        return list(points)
+    idx = np.unique(np.linspace(0, len(points) - 1, max_samples).round().astype(int))
+    return [points[i] for i in idx]
+
+
+def _fraction_on(
+    a: Branch, b: Branch, symmetries: Symmetries | None, tol: IdentityTolerance,
+    max_samples: int,
+) -> float:
+    """Share of (sampled) points of ``b`` lying on the curve of ``a``."""
+    if not a.points or not b.points:
+        return 0.0
+    samples = _sample(b.points, max_samples)
+    if a.kind in CYCLE_KINDS:
+        ca = np.array([_cycle_signature(pt) for pt in a.points])
+        if any(_cycle_signature(pt).shape[0] != ca.shape[1] for pt in samples):
+            return 0.0
+        scale = 1.0 + np.max(np.abs(ca), axis=0)
+        curve = ca / scale
+        step = _median_step(curve)
+        hits = 0
+        for pt in samples:
+            d = _curve_distance(_cycle_signature(pt) / scale, curve)
+            hits += d <= tol.atol + tol.rtol + tol.chord * step
+        return hits / len(samples)
+    raw = _curve(a)
+    if any(_state_vector(pt).shape[0] + 1 != raw.shape[1] for pt in samples):
+        return 0.0
+    # One scale for the state block, one for the parameter: the parameter
+    # must count even when the state is large.
+    su = 1.0 + float(np.max(np.linalg.norm(raw[:, :-1], axis=1)))
+    sp = 1.0 + float(np.max(np.abs(raw[:, -1])))
+    scale = np.concatenate([np.full(raw.shape[1] - 1, su), [sp]])
+    curve = raw / scale
+    step = _median_step(curve)
+    orbit = _Orbit(symmetries, len(b.points[0].u))
+    if raw.shape[1] - 1 != len(b.points[0].u):
+        # Rotating wave: the state is (u, omega). Symmetries act on u; a
+        # reflection may reverse the sense of rotation, so try both signs.
+        orbit = orbit.extended()
+    hits = 0
+    for pt in samples:
+        d = orbit.distance(_state_vector(pt), pt.p, curve, scale)
+        hits += d <= tol.atol + tol.rtol + tol.chord * step
+    return hits / len(samples)
+
+
+def _extend(M: Array, corner: float = 1.0) -> Array:
+    n = M.shape[0]
+    out = np.zeros((n + 1, n + 1))
+    out[:n, :n] = M
+    out[n, n] = corner
+    return out
+
+
+def _median_step(curve: Array) -> float:
+    if len(curve) < 2:
+        return 0.0
+    return float(np.median(np.linalg.norm(np.diff(curve, axis=0), axis=1)))
+
+
+def same_branch(
+    a: Branch,
+    b: Branch,
+    symmetries: Symmetries | None = None,
+    tol: IdentityTolerance | None = None,
+    max_samples: int = 12,
+) -> bool:
+    """True when ``a`` and ``b`` are the same state family (up to symmetry).
+
+    Same kind, same continuation parameter, and at least
+    ``tol.min_fraction`` of the points of one lie on the curve of the other
+    (checked both ways, so a short branch that overlaps a long one counts).
+
+    Parameters
+    ----------
+    a, b:
+        The branches.
+    symmetries:
+        The model's declared symmetries (group orbits are quotiented out).
+    tol:
+        Tolerances, see :class:`IdentityTolerance`.
+    max_samples:
+        At most this many points of each branch are tested (cost bound).
+    """
+    tol = tol or IdentityTolerance()
+    if a.kind != b.kind or a.param != b.param:
+        return False
+    if not a.points or not b.points:
+        return False
+    f = max(
+        _fraction_on(a, b, symmetries, tol, max_samples),
+        _fraction_on(b, a, symmetries, tol, max_samples),
+    )
+    return f >= tol.min_fraction
+
+
+def same_special_point(
+    a: SpecialPoint,
+    b: SpecialPoint,
+    symmetries: Symmetries | None = None,
+    rtol: float = 1e-3,
+    atol: float = 1e-6,
+) -> bool:
+    """True when two special points are one bifurcation seen from two branches.
+
+    Kinds must match up to the equivalences below (a double Hopf found as
+    a Hopf from one side is still the same point), the parameter values
+    must agree and the states must agree up to symmetry. For cycles the
+    phase-invariant signature is compared.
+    """
+    equiv = {"double_hopf": "hopf"}
+    if equiv.get(a.kind, a.kind) != equiv.get(b.kind, b.kind):
+        return False
+    pa, pb = a.point, b.point
+    if abs(pa.p - pb.p) > atol + rtol * (1.0 + max(abs(pa.p), abs(pb.p))):
+        return False
+    if pa.kind in CYCLE_KINDS or pb.kind in CYCLE_KINDS:
+        if pa.kind != pb.kind:
+            return False
+        sa, sb = _cycle_signature(pa), _cycle_signature(pb)
+        if sa.shape != sb.shape:
+            return False
+        return bool(np.all(np.abs(sa - sb) <= atol + rtol * (1.0 + np.abs(sa))))
+    ua, ub = np.asarray(pa.u, dtype=float), np.asarray(pb.u, dtype=float)
+    if ua.shape != ub.shape:
+        return False
+    scale = 1.0 + max(float(np.linalg.norm(ua)), float(np.linalg.norm(ub)))
+    orbit = _Orbit(symmetries, ua.size)
+    d = orbit.distance(ub, 0.0, np.concatenate([ua, [0.0]])[None, :],
+                       np.full(ua.size + 1, scale))
+    # Localisation error of a special point is larger than that of a point
+    # (secant/bisection on a test function): use a looser, sqrt-scaled bound.
+    return d <= atol + np.sqrt(rtol) * 0.1

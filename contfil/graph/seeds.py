@@ -1,0 +1,138 @@
+"""Seeds (where a continuation starts) and the switcher registry.
+
+A *switcher* turns a special point into seeds of new branches:
+``switcher(sp, branch, problem) -> list of seeds``. A seed may be a
+:class:`Seed` or a plain tuple ``(problem, x0, p0[, direction_or_tangent])``
+so engine functions plug in without depending on this module.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from contfil.engine.branch import Branch, SpecialPoint
+from contfil.errors import ContfilError
+
+Array = NDArray[np.float64]
+
+
+@dataclass
+class Seed:
+    """A starting point for continuation.
+
+    Attributes
+    ----------
+    problem:
+        The continuable problem (``G(x, p) = 0``), e.g. an
+        ``EquilibriumProblem``, a rotating-wave or shooting problem.
+    x0, p0:
+        Initial unknowns (problem coordinates, not just the model state) and
+        parameter.
+    direction:
+        +1 / -1: sense of the parameter (or of ``tangent``) to go first.
+    tangent:
+        Optional initial tangent in ``(x, p)`` (length ``n + 1``); switching
+        at a branch point supplies the second tangent here.
+    both_directions:
+        Also continue from the seed in the opposite sense (``None``: the
+        explorer's default).
+    label:
+        Human-readable origin, e.g. ``"BP1 +"``.
+    info:
+        Free data kept with the branch (switching amplitude, ...).
+    """
+
+    problem: Any
+    x0: Array
+    p0: float
+    direction: int = 1
+    tangent: Array | None = None
+    both_directions: bool | None = None
+    label: str = ""
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def kind(self) -> str:
+        return str(getattr(self.problem, "kind", "equilibrium"))
+
+    def fingerprint(self) -> dict[str, Any]:
+        """JSON data identifying the seed (stored with a run to check resumes)."""
+        x0 = np.asarray(self.x0, dtype=float)
+        return {
+            "kind": self.kind,
+            "p0": float(self.p0),
+            "n": int(x0.size),
+            "x0_norm": float(np.linalg.norm(x0)),
+            "x0_sum": float(np.sum(x0)),
+            "direction": int(self.direction),
+            "label": self.label,
+        }
+
+
+def as_seed(obj: Any) -> Seed:
+    """Normalise what a switcher returned into a :class:`Seed`."""
+    if isinstance(obj, Seed):
+        return obj
+    if isinstance(obj, dict):
+        return Seed(**obj)
+    if isinstance(obj, tuple | list) and len(obj) in (3, 4):
+        problem, x0, p0 = obj[:3]
+        seed = Seed(problem=problem, x0=np.asarray(x0, dtype=float), p0=float(p0))
+        if len(obj) == 4 and obj[3] is not None:
+            d = obj[3]
+            if np.ndim(d) == 0:
+                seed.direction = 1 if float(d) >= 0 else -1
+            else:
+                seed.tangent = np.asarray(d, dtype=float)
+        return seed
+    # Engine objects with the right attributes (duck typing).
+    if all(hasattr(obj, a) for a in ("problem", "x0", "p0")):
+        return Seed(
+            problem=obj.problem,
+            x0=np.asarray(obj.x0, dtype=float),
+            p0=float(obj.p0),
+            direction=int(getattr(obj, "direction", 1) or 1),
+            tangent=getattr(obj, "tangent", None),
+            label=str(getattr(obj, "label", "")),
+        )
+    raise ContfilError(
+        f"a switcher returned {type(obj).__name__}; expected a Seed or a tuple "
+        "(problem, x0, p0[, direction or tangent])"
+    )
+
+
+Switcher = Callable[[SpecialPoint, Branch, Any], Iterable[Any]]
+
+
+class SwitcherRegistry:
+    """Special-point kind -> switching function.
+
+    >>> reg = SwitcherRegistry()
+    >>> reg.register("branch_point", lambda sp, br, pb: [])
+    >>> "branch_point" in reg
+    True
+    """
+
+    def __init__(self, switchers: dict[str, Switcher] | None = None) -> None:
+        self._fns: dict[str, Switcher] = dict(switchers or {})
+
+    def register(self, kind: str, fn: Switcher) -> None:
+        self._fns[kind] = fn
+
+    def __contains__(self, kind: str) -> bool:
+        return kind in self._fns
+
+    def kinds(self) -> list[str]:
+        return sorted(self._fns)
+
+    def seeds(self, sp: SpecialPoint, branch: Branch, problem: Any) -> list[Seed]:
+        """Seeds of the branches leaving ``sp`` (empty if no switcher)."""
+        fn = self._fns.get(sp.kind)
+        if fn is None:
+            return []
+        return [as_seed(s) for s in fn(sp, branch, problem)]

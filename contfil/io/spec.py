@@ -1,0 +1,293 @@
+"""Spec files: one TOML file describes a whole study.
+
+Tables (see ``docs/user-guide.md`` for every key):
+
+- ``[scene]`` (a filament, parsed by :func:`contfil.models.filament.load_scene`)
+  **or** ``[model]`` (a textbook model of :mod:`contfil.models.catalog` by
+  ``name``, with optional ``params`` overrides);
+- ``[continuation]``: parameter, start, range, step sizes, tolerances;
+- ``[explorer]``: switching depth, which bifurcations to follow;
+- ``[output]``: run directory, plots, diagram observable;
+- ``[simulate]``: time integration for ``contfil simulate``.
+
+Every key is checked; a bad spec raises :class:`~contfil.errors.SpecError`
+whose message starts with the dotted key (``continuation.ds: expected a
+positive number, got 'x'``).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from contfil.errors import SpecError
+
+# ----------------------------------------------------------------- checkers
+Checker = Callable[[str, Any], Any]
+
+
+def _number(positive: bool = False, nonneg: bool = False) -> Checker:
+    def check(key: str, v: Any) -> float:
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise SpecError(f"{key}: expected a number, got {type(v).__name__} {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            raise SpecError(f"{key}: expected a finite number, got {v!r}")
+        if positive and v <= 0:
+            raise SpecError(f"{key}: expected a positive number, got {v!r}")
+        if nonneg and v < 0:
+            raise SpecError(f"{key}: expected a non-negative number, got {v!r}")
+        return v
+
+    return check
+
+
+def _integer(minimum: int | None = None) -> Checker:
+    def check(key: str, v: Any) -> int:
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise SpecError(f"{key}: expected an integer, got {type(v).__name__} {v!r}")
+        if minimum is not None and v < minimum:
+            raise SpecError(f"{key}: expected an integer >= {minimum}, got {v!r}")
+        return int(v)
+
+    return check
+
+
+def _string(key: str, v: Any) -> str:
+    if not isinstance(v, str) or not v:
+        raise SpecError(f"{key}: expected a non-empty string, got {type(v).__name__} {v!r}")
+    return v
+
+
+def _boolean(key: str, v: Any) -> bool:
+    if not isinstance(v, bool):
+        raise SpecError(f"{key}: expected true or false, got {type(v).__name__} {v!r}")
+    return v
+
+
+def _choice(*options: Any) -> Checker:
+    def check(key: str, v: Any) -> Any:
+        if v not in options:
+            raise SpecError(f"{key}: expected one of {list(options)}, got {v!r}")
+        return v
+
+    return check
+
+
+def _range(key: str, v: Any) -> tuple[float, float]:
+    num = _number()
+    if not isinstance(v, list) or len(v) != 2:
+        raise SpecError(f"{key}: expected [low, high] (two numbers), got {v!r}")
+    lo, hi = num(f"{key}[0]", v[0]), num(f"{key}[1]", v[1])
+    if not lo < hi:
+        raise SpecError(f"{key}: expected low < high, got {v!r}")
+    return lo, hi
+
+
+def _number_list(key: str, v: Any) -> list[float]:
+    if not isinstance(v, list) or not v:
+        raise SpecError(f"{key}: expected a non-empty list of numbers, got {v!r}")
+    num = _number()
+    return [num(f"{key}[{i}]", x) for i, x in enumerate(v)]
+
+
+def _string_list(key: str, v: Any) -> list[str]:
+    if not isinstance(v, list):
+        raise SpecError(f"{key}: expected a list of strings, got {type(v).__name__} {v!r}")
+    return [_string(f"{key}[{i}]", x) for i, x in enumerate(v)]
+
+
+def _table(key: str, v: Any) -> dict[str, Any]:
+    if not isinstance(v, Mapping):
+        raise SpecError(f"{key}: expected a table, got {type(v).__name__} {v!r}")
+    return dict(v)
+
+
+# Special-point kinds a spec may ask the explorer to follow.
+KINDS = ("fold", "branch_point", "hopf", "double_hopf", "cycle_fold", "cycle_branch_point",
+         "period_doubling", "torus")
+
+# key: (checker, default, required, description). The descriptions are the
+# spec reference (the user guide lists the same keys; a test keeps them in step).
+SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
+    "model": {
+        "name": (_string, None, True, "catalog model name (contfil.models.catalog)"),
+        "params": (_table, {}, False, "parameter overrides {name = value}"),
+    },
+    "continuation": {
+        "parameter": (_string, None, False,
+                      "continuation parameter (default: the scene's actuation strength)"),
+        "start": (_number(), None, False, "starting value (default: from scene/model)"),
+        "range": (_range, None, True, "[low, high] window; branches stop outside it"),
+        "direction": (_choice(1, -1), 1, False, "+1 or -1: first sense of the root branch"),
+        "kind": (_choice("equilibrium"), "equilibrium", False, "kind of the root branch"),
+        "initial_state": (_number_list, None, False,
+                          "root state (default: model.initial_state)"),
+        "ds": (_number(positive=True), 0.01, False, "initial arclength step"),
+        "ds_min": (_number(positive=True), 1e-6, False, "smallest step before giving up"),
+        "ds_max": (_number(positive=True), 0.1, False, "largest step"),
+        "max_points": (_integer(1), 200, False, "points per direction of a branch"),
+        "tol": (_number(positive=True), 1e-10, False, "Newton tolerance (residual norm)"),
+        "max_newton": (_integer(1), 10, False, "Newton iterations per step"),
+        "stability": (_boolean, True, False, "compute eigenvalues/multipliers at points"),
+        "both_directions": (_boolean, False, False, "continue the root branch both ways"),
+    },
+    "explorer": {
+        "depth": (_integer(0), 1, False, "switches away from the root branch (0: root only)"),
+        "kinds": (_string_list, None, False, f"special points to switch at, from {list(KINDS)}"),
+        "both_directions": (_boolean, True, False, "continue switched branches both ways"),
+        "max_branches": (_integer(1), 30, False, "cap on continuation tasks"),
+        "dedup_after": (_integer(2), 6, False, "points before the early duplicate test"),
+    },
+    "output": {
+        "dir": (_string, None, False, "run directory (default: runs/<spec name>)"),
+        "plots": (_boolean, True, False, "write PNG figures at the end"),
+        "observable": (_string, None, False,
+                       "diagram ordinate (default: bending_energy if present, else norm)"),
+        "graphml": (_boolean, True, False, "also write graph.graphml"),
+        "fsync": (_boolean, True, False, "fsync every stored point (crash safety)"),
+    },
+    "simulate": {
+        "t_end": (_number(positive=True), 1.0, False, "integration time"),
+        "dt": (_number(positive=True), 1e-3, False, "time step"),
+        "frames": (_integer(2), 40, False, "stored snapshots"),
+        "strength": (_number(), None, False, "actuation value (default: the scene's)"),
+        "perturbation": (_number(nonneg=True), 1e-2, False,
+                         "amplitude of the initial perturbation of the upright state"),
+        "seed": (_integer(0), 0, False, "random seed of the perturbation"),
+    },
+}
+
+TOP_KEYS = ("scene", "model", "continuation", "explorer", "output", "simulate")
+
+
+@dataclass
+class Spec:
+    """A validated spec: checked tables with defaults filled in.
+
+    ``scene`` is the raw ``[scene]`` table (validated by the filament
+    package when the model is built), ``model`` the ``[model]`` table;
+    exactly one of them is set.
+    """
+
+    continuation: dict[str, Any]
+    explorer: dict[str, Any]
+    output: dict[str, Any]
+    simulate: dict[str, Any]
+    scene: dict[str, Any] | None = None
+    model: dict[str, Any] | None = None
+    path: Path | None = None
+    text: str = ""
+    raw: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        if self.path is not None:
+            return self.path.stem
+        if self.scene is not None:
+            return str(self.scene.get("name", "scene"))
+        return str((self.model or {}).get("name", "spec"))
+
+
+def _check_table(name: str, table: Any, required: bool = True) -> dict[str, Any]:
+    tab = _table(name, table)
+    schema = SCHEMA[name]
+    for k in tab:
+        if k not in schema:
+            raise SpecError(f"{name}.{k}: unknown key; expected one of {list(schema)}")
+    out: dict[str, Any] = {}
+    for k, (check, default, req, _doc) in schema.items():
+        if k in tab:
+            out[k] = check(f"{name}.{k}", tab[k])
+        elif req and required:
+            raise SpecError(f"{name}.{k}: missing; {_doc}")
+        else:
+            out[k] = default
+    return out
+
+
+def parse_spec(doc: Mapping[str, Any], path: str | Path | None = None, text: str = "") -> Spec:
+    """Validate a spec given as a dict (the parsed TOML)."""
+    if not isinstance(doc, Mapping):
+        raise SpecError(f"spec: expected a table, got {type(doc).__name__}")
+    for k in doc:
+        if k not in TOP_KEYS:
+            raise SpecError(f"{k}: unknown table; expected some of {list(TOP_KEYS)}")
+    has_scene, has_model = "scene" in doc, "model" in doc
+    if has_scene == has_model:
+        raise SpecError(
+            "scene/model: expected exactly one of [scene] (a filament) or [model] "
+            "(a catalog model), got " + ("both" if has_scene else "neither")
+        )
+    scene = None
+    model = None
+    if has_scene:
+        scene = _table("scene", doc["scene"])
+        _validate_scene(scene)
+    else:
+        model = _check_table("model", doc["model"])
+        num = _number()
+        model["params"] = {str(k): num(f"model.params.{k}", v)
+                           for k, v in model["params"].items()}
+    # [continuation] is required for `run`, optional for `simulate`.
+    cont = _check_table("continuation", doc.get("continuation", {}),
+                        required="continuation" in doc)
+    if cont["ds_min"] > cont["ds_max"]:
+        raise SpecError(
+            f"continuation.ds_min: expected <= ds_max ({cont['ds_max']}), got {cont['ds_min']}")
+    if not cont["ds_min"] <= cont["ds"] <= cont["ds_max"]:
+        raise SpecError(
+            f"continuation.ds: expected within [ds_min, ds_max] = "
+            f"[{cont['ds_min']}, {cont['ds_max']}], got {cont['ds']}")
+    if cont["range"] is not None and cont["start"] is not None:
+        lo, hi = cont["range"]
+        if not lo <= cont["start"] <= hi:
+            raise SpecError(f"continuation.start: expected within range [{lo}, {hi}], "
+                            f"got {cont['start']}")
+    expl = _check_table("explorer", doc.get("explorer", {}))
+    if expl["kinds"] is not None:
+        for k in expl["kinds"]:
+            if k not in KINDS:
+                raise SpecError(f"explorer.kinds: unknown kind {k!r}; expected some of "
+                                f"{list(KINDS)}")
+    out = _check_table("output", doc.get("output", {}))
+    sim = _check_table("simulate", doc.get("simulate", {}))
+    return Spec(continuation=cont, explorer=expl, output=out, simulate=sim, scene=scene,
+                model=model, path=None if path is None else Path(path), text=text,
+                raw=dict(doc))
+
+
+def _validate_scene(scene: dict[str, Any]) -> None:
+    """Validate ``[scene]`` with the filament package's own parser (its
+    errors already name the key)."""
+    try:
+        from contfil.models.filament.scene import load_scene
+    except ImportError:  # pragma: no cover - filament package absent
+        return
+    load_scene({"scene": scene})
+
+
+def load_spec(path: str | Path) -> Spec:
+    """Read and validate a spec file; :class:`SpecError` names any problem."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SpecError(f"{path}: spec file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SpecError(f"{path}: cannot read spec file: {exc}") from None
+    return loads_spec(text, path)
+
+
+def loads_spec(text: str, path: str | Path | None = None) -> Spec:
+    """Validate a spec given as TOML text."""
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        where = f"{path}: " if path else ""
+        raise SpecError(f"{where}invalid TOML: {exc}") from None
+    return parse_spec(doc, path, text)

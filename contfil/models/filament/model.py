@@ -1,0 +1,266 @@
+"""The active-filament model as a :class:`contfil.models.protocol.Model`.
+
+State: the effective Lie-algebra elements ``U_n`` (n = 2..N) flattened
+segment-major (3D, ``dim = 3(N-1)``), or the in-plane tangent angles
+``phi_n`` with ``U_n = (0, phi_n, 0)`` (planar, ``dim = N-1``, motion in the
+x-z plane). ``rhs`` solves the linear constraint system for the internal
+forces and clamp reactions at the current configuration and returns
+``dU_n/dt = dexp_inv(U_n, Omega_n)``. See docs/filament-model.md.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from contfil.errors import NonFiniteError
+from contfil.models.protocol import (
+    ContinuousSymmetry,
+    InvariantSubspace,
+    Symmetries,
+)
+
+from .effects import build_effects
+from .kernels import constraints as _kc
+from .kernels import geometry as _geo
+from .scene import Scene, load_scene
+
+Array = np.ndarray
+
+
+def _rz_generator(nseg: int) -> Array:
+    G = np.zeros((3 * nseg, 3 * nseg))
+    for n in range(nseg):
+        G[3 * n + 1, 3 * n] = 1.0
+        G[3 * n, 3 * n + 1] = -1.0
+    return G
+
+
+class FilamentModel:
+    """Clamped active filament assembled from a :class:`Scene`.
+
+    Parameters
+    ----------
+    scene:
+        A :class:`Scene`, a ``[scene]`` table (dict) or a TOML file path.
+
+    Notes
+    -----
+    ``p = [s]`` holds the actuation strength (``f`` or ``b1``); a passive
+    scene has no parameters. Units: L = 1, K_B and eta as in the scene.
+    """
+
+    def __init__(self, scene: Scene | Mapping[str, Any] | str | Path) -> None:
+        if not isinstance(scene, Scene):
+            scene = load_scene(scene)
+        self.scene = scene
+        self.N = scene.N
+        self.dL = scene.dL
+        self.planar = scene.planar
+        self.name = scene.name + ("_planar" if self.planar and "planar" not in scene.name else "")
+        self.dim = (scene.N - 1) if self.planar else 3 * (scene.N - 1)
+        pn = scene.param_name
+        self.param_names: tuple[str, ...] = () if pn is None else (pn,)
+        self._defaults = np.array([scene.strength]) if pn is not None else np.zeros(0)
+        self._hyd, self._act = build_effects(scene)
+        self._KB = float(scene.KB)
+        self._KT = float(scene.KT)
+        self.symmetries = self._build_symmetries()
+        # time-stepper hook: bound only if the stepper module exists, so that
+        # getattr(model, "flow", None) tells the engine the truth
+        if importlib.util.find_spec(__package__ + ".stepper") is not None:
+            self.flow = self._flow
+
+    # -- protocol ---------------------------------------------------------
+    def default_params(self) -> Array:
+        return self._defaults.copy()
+
+    def initial_state(self, p: Array | None = None) -> Array:
+        """The upright filament (all ``U_n = 0``)."""
+        return np.zeros(self.dim)
+
+    def rhs(self, u: Array, p: Array) -> Array:
+        """The vector field ``du/dt``."""
+        return self.evaluate(u, p)[0]
+
+    def evaluate(self, u: Array, p: Array) -> tuple[Array, Array, Array]:
+        """``(du/dt, lam, vel)``: the vector field, the multipliers and velocities.
+
+        3D: ``lam = [Lam_{3/2}..Lam_{N-1/2} (3 each), Fc, Tc]`` and ``vel =
+        [V_1..V_N, Omega_1..Omega_N]``. Planar: ``lam = [Lam_x, Lam_z per joint,
+        Fc_x, Fc_z, Tc_y]``, ``vel = [V_x, V_z per segment, Omega_y ...]``.
+        """
+        u = np.asarray(u, dtype=np.float64)
+        if u.shape != (self.dim,):
+            raise ValueError(f"{self.name}: state has shape {u.shape}, expected ({self.dim},)")
+        if not np.isfinite(u).all():
+            raise NonFiniteError(f"{self.name}.rhs: non-finite state (NaN/inf in u)")
+        s = float(p[0]) if self.param_names else 0.0
+        if self.planar:
+            t, X = _kc.planar_configuration(u, self.dL)
+            Mob = self._hyd.mobility(X)
+            FA, Vsf = self._act.loads(X, t, s)
+            out = _kc.rhs_planar(u, t, Mob, FA, Vsf, self.dL, self._KB)
+        else:
+            q, t, X = _geo.configuration(u, self.dL)
+            Mob = self._hyd.mobility(X)
+            FA, Vsf = self._act.loads(X, t, s)
+            out = _kc.rhs3d(u, q, t, Mob, FA, Vsf, self.dL, self._KB, self._KT)
+        if not np.isfinite(out[0]).all():
+            raise NonFiniteError(
+                f"{self.name}.rhs: non-finite vector field at |u|={np.linalg.norm(u):.3g}"
+            )
+        return out
+
+    def jacobian(self, u: Array, p: Array) -> Array:
+        """Dense Jacobian of :meth:`rhs` by central differences (O(h^2))."""
+        u = np.asarray(u, dtype=np.float64)
+        J = np.empty((self.dim, self.dim))
+        h0 = np.finfo(float).eps ** (1.0 / 3.0)
+        up = u.copy()
+        for i in range(self.dim):
+            h = h0 * max(1.0, abs(u[i]))
+            up[i] = u[i] + h
+            fp = self.rhs(up, p)
+            up[i] = u[i] - h
+            fm = self.rhs(up, p)
+            up[i] = u[i]
+            J[:, i] = (fp - fm) / (2.0 * h)
+        return J
+
+    def _flow(self, u: Array, p: Array, T: float, **kwargs: Any) -> Array:
+        """Time-T map, delegated to :mod:`contfil.models.filament.stepper`."""
+        from . import stepper
+
+        return stepper.flow(self, u, p, T, **kwargs)
+
+    # -- geometry helpers -------------------------------------------------
+    def full_state(self, u: Array) -> Array:
+        """The 3D state ``U`` (planar states are embedded as ``U_n = (0, phi_n, 0)``)."""
+        u = np.asarray(u, dtype=float)
+        if not self.planar:
+            return u
+        U = np.zeros(3 * (self.N - 1))
+        U[1::3] = u
+        return U
+
+    def tangents(self, u: Array) -> Array:
+        """Unit tangents (N, 3)."""
+        if self.planar:
+            t2, _ = _kc.planar_configuration(np.asarray(u, float), self.dL)
+            return np.column_stack([t2[:, 0], np.zeros(self.N), t2[:, 1]])
+        return _geo.tangents(_geo.frames_from_state(np.asarray(u, float)))
+
+    def frames(self, u: Array) -> Array:
+        """Quaternions (N, 4) of the material frames."""
+        return _geo.frames_from_state(self.full_state(u))
+
+    def segment_positions(self, u: Array) -> Array:
+        """Segment centres (N, 3), ``X_1 = 0``."""
+        return _geo.positions(self.tangents(u), self.dL)
+
+    def centreline(self, u: Array) -> Array:
+        """Points ``Y(s)`` at the base, every joint and the tip ((N+1), 3)."""
+        t = self.tangents(u)
+        X = _geo.positions(t, self.dL)
+        Y = np.empty((self.N + 1, 3))
+        Y[0] = X[0] - 0.5 * self.dL * t[0]
+        Y[1:] = X + 0.5 * self.dL * t
+        return Y
+
+    def internal_forces(self, u: Array, p: Array) -> dict[str, Array]:
+        """Internal force profile at the joints and the clamp reactions.
+
+        Returns ``Lam`` (N-1, 3) (force exerted by segment n+1 on segment n),
+        ``s`` (arclength of each joint, ``n dL``), ``tension = Lam . t_mid``
+        (negative = compression) with ``t_mid`` the normalised mean of the
+        neighbouring tangents, ``shear = |Lam - (Lam . t_mid) t_mid|``, and
+        ``Fc``, ``Tc`` (3,).
+        """
+        _, lam, _ = self.evaluate(u, p)
+        N = self.N
+        if self.planar:
+            Lam = np.zeros((N - 1, 3))
+            Lam[:, 0] = lam[0 : 2 * (N - 1) : 2]
+            Lam[:, 2] = lam[1 : 2 * (N - 1) : 2]
+            c = 2 * (N - 1)
+            Fc = np.array([lam[c], 0.0, lam[c + 1]])
+            Tc = np.array([0.0, lam[c + 2], 0.0])
+        else:
+            Lam = lam[: 3 * (N - 1)].reshape(N - 1, 3).copy()
+            Fc = lam[3 * (N - 1) : 3 * (N - 1) + 3].copy()
+            Tc = lam[3 * (N - 1) + 3 :].copy()
+        t = self.tangents(u)
+        tm = t[:-1] + t[1:]
+        tm /= np.linalg.norm(tm, axis=1)[:, None]
+        ten = np.einsum("ij,ij->i", Lam, tm)
+        shear = np.linalg.norm(Lam - ten[:, None] * tm, axis=1)
+        s = self.dL * np.arange(1, N)
+        return {"Lam": Lam, "s": s, "tension": ten, "shear": shear, "Fc": Fc, "Tc": Tc}
+
+    def bending_energy(self, u: Array) -> float:
+        """``E = int 1/2 |d^2Y/ds^2|^2 ds ~ sum_n |t_{n+1} - t_n|^2 / (2 dL)``.
+
+        (``d^2Y/ds^2 = dt/ds`` is differenced across each joint, length dL.)
+        In units of ``K_B/L`` when multiplied by K_B (=1 here).
+        """
+        t = self.tangents(u)
+        d = t[1:] - t[:-1]
+        return float(np.sum(d * d) / (2.0 * self.dL))
+
+    def observables(self, u: Array, p: Array) -> dict[str, Any]:
+        """Bending energy, tip position (free end ``X_N + dL/2 t_N``), tip angle.
+
+        ``tip_angle`` is ``atan2(y, x)`` of the free end (azimuth about e3),
+        ``tip_r`` its distance from the e3 axis.
+        """
+        u = np.asarray(u, dtype=float)
+        if not np.isfinite(u).all():
+            raise NonFiniteError(f"{self.name}.observables: non-finite state")
+        t = self.tangents(u)
+        X = _geo.positions(t, self.dL)
+        tip = X[-1] + 0.5 * self.dL * t[-1]
+        d = t[1:] - t[:-1]
+        return {
+            "bending_energy": float(np.sum(d * d) / (2.0 * self.dL)),
+            "tip_x": float(tip[0]),
+            "tip_y": float(tip[1]),
+            "tip_z": float(tip[2]),
+            "tip_r": float(np.hypot(tip[0], tip[1])),
+            "tip_angle": float(np.arctan2(tip[1], tip[0])),
+            "norm": float(np.linalg.norm(u)),
+        }
+
+    # -- symmetries -------------------------------------------------------
+    def _build_symmetries(self) -> Symmetries:
+        n1 = self.N - 1
+        if self.planar:
+            # x -> -x mirror: phi -> -phi
+            return Symmetries(reflections={"mirror_x": -np.eye(n1)})
+        # U is an axial vector: a mirror P acts as det(P) P = -P on each block
+        my = np.kron(np.eye(n1), np.diag([-1.0, 1.0, -1.0]))  # y -> -y
+        mx = np.kron(np.eye(n1), np.diag([1.0, -1.0, -1.0]))  # x -> -x
+        scene = self.scene
+
+        def embed(phi: Array) -> Array:
+            U = np.zeros(3 * n1)
+            U[1::3] = phi
+            return U
+
+        def project(U: Array) -> Array:
+            return np.asarray(U)[1::3].copy()
+
+        def reduced() -> FilamentModel:
+            return FilamentModel(scene.replace(dimension="planar"))
+
+        return Symmetries(
+            continuous=[ContinuousSymmetry("rotation_e3", _rz_generator(n1), 2 * np.pi)],
+            reflections={"mirror_y": my, "mirror_x": mx},
+            invariant_subspaces={
+                "planar_xz": InvariantSubspace("planar_xz", embed, project, reduced)
+            },
+        )

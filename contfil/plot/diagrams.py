@@ -1,0 +1,282 @@
+"""Figures of a study: bifurcation diagram, leading eigenvalues, filament views.
+
+Every function takes a run directory, a graph file or a
+:class:`~contfil.graph.branch_graph.BranchGraph` (filament views take plain
+position arrays) and returns the matplotlib Axes it drew on, so figures can
+be composed in a notebook. Nothing here picks a backend; the CLI uses Agg.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.axes import Axes
+from numpy.typing import NDArray
+
+from contfil.graph.branch_graph import BranchGraph
+
+Source = BranchGraph | str | Path
+
+_KIND_COLOURS = {
+    "equilibrium": "tab:blue",
+    "rotating_wave": "tab:orange",
+    "periodic_orbit": "tab:green",
+    "relative_periodic_orbit": "tab:purple",
+}
+
+
+def as_graph(source: Source) -> BranchGraph:
+    """A :class:`BranchGraph` from a graph, a run directory or a graph file."""
+    if isinstance(source, BranchGraph):
+        return source
+    from contfil.io.store import load_run_graph
+
+    return load_run_graph(source)
+
+
+def default_observable(graph: BranchGraph) -> str:
+    """``bending_energy`` when the points carry it (filament), else ``norm``."""
+    for _, _, pt in graph.iter_points():
+        if "bending_energy" in pt.observables:
+            return "bending_energy"
+        if "norm" in pt.observables:
+            return "norm"
+        break
+    return "norm"
+
+
+def _values(points: list[Any], observable: str) -> NDArray[np.float64]:
+    out = np.empty(len(points))
+    for i, pt in enumerate(points):
+        v = pt.observables.get(observable)
+        if v is None and observable == "norm":
+            v = float(np.linalg.norm(pt.u))
+        out[i] = np.nan if v is None or np.ndim(v) != 0 else float(v)
+    return out
+
+
+def _runs(flags: list[bool | None]) -> list[tuple[int, int, bool | None]]:
+    """Maximal runs ``(i0, i1, flag)`` of equal stability (inclusive ends)."""
+    runs: list[tuple[int, int, bool | None]] = []
+    for i, f in enumerate(flags):
+        if runs and runs[-1][2] == f:
+            runs[-1] = (runs[-1][0], i, f)
+        else:
+            runs.append((i, i, f))
+    return runs
+
+
+def bifurcation_diagram(
+    source: Source,
+    observable: str | None = None,
+    ax: Axes | None = None,
+    label_points: bool = True,
+    legend: bool = True,
+) -> Axes:
+    """An observable against the parameter, for every branch of a study.
+
+    Stable stretches are solid, unstable ones dashed (unknown stability:
+    dotted); special points are marked and labelled (``BP1``, ``H1``, ...).
+    The default observable is the (period-mean) bending energy when present.
+    """
+    g = as_graph(source)
+    obs = observable or default_observable(g)
+    if ax is None:
+        _, ax = plt.subplots(figsize=(6.4, 4.4))
+    seen_kinds: set[str] = set()
+    param = "p"
+    for bid, br in g.branches.items():
+        if not br.points:
+            continue
+        param = br.param
+        ps = br.parameter_values()
+        ys = _values(br.points, obs)
+        colour = _KIND_COLOURS.get(br.kind, "tab:gray")
+        flags = [pt.stable for pt in br.points]
+        for i0, i1, st in _runs(flags):
+            # Overlap runs by one point so the curve has no gaps.
+            j1 = min(i1 + 1, len(ps) - 1)
+            style = "-" if st else ("--" if st is False else ":")
+            label = None
+            if br.kind not in seen_kinds:
+                label = br.kind.replace("_", " ")
+                seen_kinds.add(br.kind)
+            ax.plot(ps[i0:j1 + 1], ys[i0:j1 + 1], style, color=colour, lw=1.6, label=label)
+        ax.annotate(bid, (ps[-1], ys[-1]), fontsize=7, color=colour,
+                    xytext=(3, 0), textcoords="offset points")
+    for sid, sp in g.special_points.items():
+        node = g.g.nodes[sid]
+        y = _values([sp.point], obs)[0]
+        marker = "o" if node["switchable"] else "x"
+        ax.plot([sp.point.p], [y], marker, color="k", ms=5, mfc="white" if marker == "o" else None)
+        if label_points:
+            ax.annotate(node["label"], (sp.point.p, y), fontsize=8,
+                        xytext=(4, 4), textcoords="offset points")
+    ax.set_xlabel(param)
+    ax.set_ylabel(obs.replace("_", " "))
+    if legend and seen_kinds:
+        ax.legend(fontsize=8, frameon=False)
+    return ax
+
+
+def eigenvalue_plot(
+    source: Source,
+    n: int = 4,
+    branches: list[str] | None = None,
+    axes: tuple[Axes, Axes] | None = None,
+    include_trivial: bool = False,
+) -> tuple[Axes, Axes]:
+    """Real and imaginary parts of the ``n`` leading eigenvalues against the parameter.
+
+    For cycle branches the values are Floquet multipliers, shown as
+    ``log|mu|`` (growth per period, zero on the stability boundary) and
+    ``arg(mu)``. Special points are marked with vertical lines.
+    Returns the two Axes (real part, imaginary part).
+    """
+    g = as_graph(source)
+    if axes is None:
+        _, axes = plt.subplots(2, 1, sharex=True, figsize=(6.4, 5.6))
+    ax_re, ax_im = axes
+    ids = branches or list(g.branches)
+    param = "p"
+    for bid in ids:
+        br = g.branch(bid)
+        param = br.param
+        cycles = br.kind in ("periodic_orbit", "relative_periodic_orbit")
+        rows = []
+        for pt in br.points:
+            ev = pt.eigenvalues
+            if ev is None:
+                rows.append(np.full(n, np.nan + 0j))
+                continue
+            ev = np.asarray(ev, dtype=complex)
+            if pt.trivial is not None and not include_trivial and len(pt.trivial) == len(ev):
+                ev = ev[~np.asarray(pt.trivial, dtype=bool)]
+            if cycles:
+                with np.errstate(divide="ignore"):
+                    ev = np.log(np.abs(ev)) + 1j * np.angle(ev)
+            row = np.full(n, np.nan + 0j)
+            row[: min(n, ev.size)] = ev[:n]
+            rows.append(row)
+        if not rows:
+            continue
+        E = np.array(rows)
+        ps = br.parameter_values()
+        colour = _KIND_COLOURS.get(br.kind, "tab:gray")
+        for k in range(n):
+            lab = f"{bid} ({br.kind.replace('_', ' ')})" if k == 0 else None
+            ax_re.plot(ps, E[:, k].real, color=colour, lw=1.2, alpha=1.0 - 0.15 * k, label=lab)
+            ax_im.plot(ps, E[:, k].imag, color=colour, lw=1.2, alpha=1.0 - 0.15 * k)
+    for sid, sp in g.special_points.items():
+        if any(b in ids for b in g.branches_at(sid)):
+            for ax in (ax_re, ax_im):
+                ax.axvline(sp.point.p, color="k", lw=0.6, ls=":")
+            ax_re.annotate(g.g.nodes[sid]["label"], (sp.point.p, 0), fontsize=7,
+                           xytext=(2, 2), textcoords="offset points")
+    ax_re.axhline(0.0, color="k", lw=0.6)
+    ax_re.set_ylabel("Re λ  (cycles: log|μ|)")
+    ax_im.set_ylabel("Im λ  (cycles: arg μ)")
+    ax_im.set_xlabel(param)
+    if ids:
+        ax_re.legend(fontsize=7, frameon=False)
+    return ax_re, ax_im
+
+
+def filament_snapshots(
+    positions: NDArray[np.float64],
+    times: NDArray[np.float64] | None = None,
+    ax: Axes | None = None,
+    shadow: bool = True,
+    tip_path: bool = True,
+    cmap: str = "viridis",
+) -> Axes:
+    """Filament centrelines in 3D coloured by time, with shadows and the tip path.
+
+    Parameters
+    ----------
+    positions:
+        ``(n_times, N, 3)`` points along the filament (base first) at each
+        time, e.g. ``model.centreline(u)`` stacked over a trajectory.
+    times:
+        ``(n_times,)`` times for the colour scale (default: the index).
+    ax:
+        A 3D Axes (``projection="3d"``); a new figure otherwise.
+    shadow:
+        Draw each shape's projection on the base plane ``z = z_min`` in grey.
+    tip_path:
+        Draw the path of the free end over all times.
+    """
+    X = np.asarray(positions, dtype=float)
+    if X.ndim != 3 or X.shape[2] != 3:
+        raise ValueError(f"filament_snapshots: positions must be (n_times, N, 3), got {X.shape}")
+    nt = X.shape[0]
+    t = np.arange(nt, dtype=float) if times is None else np.asarray(times, dtype=float)
+    if t.shape != (nt,):
+        raise ValueError(f"filament_snapshots: times must have shape ({nt},), got {t.shape}")
+    if ax is None:
+        fig = plt.figure(figsize=(5.6, 5.6))
+        ax = fig.add_subplot(projection="3d")
+    cm = plt.get_cmap(cmap)
+    span = float(t.max() - t.min()) or 1.0
+    z0 = min(0.0, float(X[..., 2].min()))
+    for k in range(nt):
+        c = cm((t[k] - t.min()) / span)
+        ax.plot(X[k, :, 0], X[k, :, 1], X[k, :, 2], color=c, lw=1.4)
+        if shadow:
+            ax.plot(X[k, :, 0], X[k, :, 1], np.full(X.shape[1], z0), color="0.6", lw=0.8,
+                    alpha=0.5)
+    if tip_path:
+        ax.plot(X[:, -1, 0], X[:, -1, 1], X[:, -1, 2], color="k", lw=0.8, ls="--")
+        if shadow:
+            ax.plot(X[:, -1, 0], X[:, -1, 1], np.full(nt, z0), color="0.3", lw=0.6, ls=":")
+    r = float(np.max(np.abs(X[..., :2]))) or 1.0
+    ax.set_xlim(-r, r)
+    ax.set_ylim(-r, r)
+    ax.set_zlim(z0, max(float(X[..., 2].max()), z0 + 1e-9))
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_zlabel("z")
+    sm = plt.cm.ScalarMappable(cmap=cm, norm=plt.Normalize(float(t.min()), float(t.max())))
+    ax.figure.colorbar(sm, ax=ax, shrink=0.6, label="time")
+    return ax
+
+
+def save_run_plots(source: Source, out_dir: str | Path | None = None,
+                   observable: str | None = None) -> list[Path]:
+    """Write ``diagram.png`` and ``eigenvalues.png`` of a run; returns the paths.
+
+    ``out_dir`` defaults to ``<run>/plots``.
+    """
+    g = as_graph(source)
+    if out_dir is None:
+        if isinstance(source, BranchGraph):
+            raise ValueError("save_run_plots: give out_dir when passing a graph")
+        base = Path(source)
+        out_dir = (base if base.is_dir() else base.parent) / "plots"
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    ax = bifurcation_diagram(g, observable)
+    ax.set_title(str(g.meta.get("name", "")))
+    ax.figure.tight_layout()
+    paths.append(_save(ax.figure, out / "diagram.png"))
+    plt.close(ax.figure)
+    if any(pt.eigenvalues is not None for _, _, pt in g.iter_points()):
+        ax_re, _ = eigenvalue_plot(g)
+        ax_re.figure.tight_layout()
+        paths.append(_save(ax_re.figure, out / "eigenvalues.png"))
+        plt.close(ax_re.figure)
+    return paths
+
+
+def _save(fig: Any, path: Path) -> Path:
+    """Save via a temporary name and rename, so a kill never leaves half a PNG."""
+    import os
+
+    tmp = path.with_name(f".{path.name}.tmp")
+    fig.savefig(tmp, dpi=120, format="png")
+    os.replace(tmp, path)
+    return path

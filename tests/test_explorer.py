@@ -1,0 +1,104 @@
+"""The automatic explorer on catalog systems with known bifurcation diagrams."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from contfil.engine.branch import BRANCH_POINT, EQUILIBRIUM
+from contfil.engine.continuation import ContinuationSettings
+from contfil.engine.equilibrium import EquilibriumProblem
+from contfil.graph import engine_adapter as ea
+from contfil.graph.explorer import Explorer, ExplorerSettings, Progress
+from contfil.graph.seeds import Seed, SwitcherRegistry, as_seed
+from contfil.models.catalog import pitchfork, z2_pitchfork
+from contfil.models.protocol import Symmetries
+
+
+def _explore(entry, symmetries, both: bool, depth: int = 2, calls: list | None = None):
+    problem = EquilibriumProblem(entry.model, entry.param)
+    root = Seed(problem, entry.u0, entry.p0, direction=1, label="root")
+    reg = SwitcherRegistry()
+
+    def bp(sp, branch, pb):
+        if calls is not None:
+            calls.append(sp.point.p)
+        return ea.branch_point_seeds(sp, branch, pb)
+
+    reg.register(BRANCH_POINT, bp)
+    settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=1.0,
+                                    newton_tol=1e-12)
+    ex = Explorer(root, ea.engine_continuer,
+                  ExplorerSettings(depth=depth, both_directions=both, p_range=(-1.0, 1.0)),
+                  reg, settings, symmetries=symmetries, progress=Progress(enabled=False))
+    return ex, ex.run()
+
+
+def _check_on_exact_branches(g, exact) -> None:
+    """Every point is on u = 0 or on the exact nontrivial branch (up to the sign of x)."""
+    for _bid, _i, pt in g.iter_points():
+        if np.allclose(pt.u, 0.0, atol=1e-10):
+            continue
+        ref = np.atleast_1d(exact(pt.p))
+        assert np.allclose(np.abs(pt.u), np.abs(ref), atol=1e-8), (pt.p, pt.u, ref)
+
+
+def test_pitchfork_whole_symmetric_branch_found_once() -> None:
+    e = z2_pitchfork()
+    ex, g = _explore(e, None, both=True)
+    # Trivial branch + the nontrivial one (both halves, through the branch
+    # point), although the branch point gave two seeds: the second was
+    # recognised as the same branch after a few points and abandoned.
+    assert len(g) == 2
+    b0, b1 = g.branch("B0"), g.branch("B1")
+    assert b0.kind == b1.kind == EQUILIBRIUM
+    assert g.g.edges["S0", "B1"]["routes"] == 2
+    assert ex.n_tasks == 3
+    xs = np.array([pt.u[0] for pt in b1.points])
+    assert xs.min() < -0.5 and xs.max() > 0.5  # both halves, one branch
+    # One branch point (mu = 0 exactly), seen from both branches: one node.
+    assert list(g.special_points) == ["S0"]
+    sp = g.special_point("S0")
+    assert abs(sp.point.p - e.exact["bp"]) < 1e-8
+    assert set(g.branches_at("S0")) == {"B0", "B1"}
+    assert g.g.nodes["S0"]["switched"]
+    _check_on_exact_branches(g, e.exact["branch"])
+    # Stability: trivial stable for mu < 0, unstable after; nontrivial stable.
+    for pt in b0.points:
+        if abs(pt.p) > 1e-6:
+            assert pt.stable == (pt.p < 0)
+    assert all(pt.stable for pt in b1.points if abs(pt.p) > 1e-6)
+
+
+def test_pitchfork_halves_merged_only_up_to_symmetry() -> None:
+    e = pitchfork()
+    # One direction per seed: the + and - halves are separate curves ...
+    calls: list[float] = []
+    _, g_plain = _explore(e, Symmetries(), both=False, calls=calls)
+    assert len(g_plain) == 3  # trivial + two symmetric branches
+    signs = sorted(np.sign(g_plain.branch(b).points[-1].u[0]) for b in ("B1", "B2"))
+    assert signs == [-1.0, 1.0]
+    # ... and the same state up to the reflection u -> -u: with the model's
+    # declared symmetry the second half is recognised as the first one.
+    _, g_sym = _explore(e, e.model.symmetries, both=False)
+    assert len(g_sym) == 2
+    assert g_sym.g.edges["S0", "B1"]["routes"] == 2
+    _check_on_exact_branches(g_sym, e.exact["branch"])
+    # Switching ran once per bifurcation: the branch point seen again from
+    # the new branch is the same node and is not switched twice.
+    assert len(calls) == 1
+
+
+def test_depth_zero_follows_root_only() -> None:
+    ex, g = _explore(z2_pitchfork(), None, both=True, depth=0)
+    assert len(g) == 1 and ex.n_tasks == 1
+    assert g.g.nodes["S0"]["switched"] is False
+
+
+def test_as_seed_accepts_tuples() -> None:
+    s = as_seed(("pb", [1.0, 2.0], 0.5, -1))
+    assert s.direction == -1 and s.p0 == 0.5 and s.tangent is None
+    s = as_seed(("pb", [1.0], 0.5, np.array([1.0, 0.0])))
+    assert s.tangent is not None and s.direction == 1
+    with pytest.raises(Exception, match="switcher returned"):
+        as_seed(3.0)

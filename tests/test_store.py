@@ -1,0 +1,177 @@
+"""The run store: checked records, atomic files, kill -9 and resume."""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from contfil.errors import ContfilError
+from contfil.graph.explorer import Progress
+from contfil.graph.study import run_study
+from contfil.io.atomic import RecordLog, atomic_write_json, decode_record, encode_record
+from contfil.io.spec import load_spec
+from contfil.io.store import RunStore, parse_task_records
+
+SPEC = """
+[model]
+name = "z2_pitchfork"
+
+[continuation]
+start = -1.0
+range = [-1.0, 1.0]
+ds = 0.02
+ds_max = 0.04
+max_points = 400
+tol = 1e-11
+
+[explorer]
+depth = 2
+
+[output]
+plots = false
+graphml = false
+"""
+
+
+def test_record_roundtrip_and_corruption_detected() -> None:
+    obj = {"t": "point", "i": 3, "x": [1.0, 2.5e-300, -0.0], "s": "é"}
+    line = encode_record(obj)
+    assert line.endswith(b"\n") and decode_record(line) == obj
+    assert decode_record(line[:-1]) is None  # not newline-terminated: torn
+    for k in (0, 12, len(line) // 2, len(line) - 3):
+        bad = bytearray(line)
+        bad[k] ^= 0x01
+        assert decode_record(bytes(bad)) is None  # checksum/length catches one flipped bit
+
+
+def test_record_log_drops_torn_tail_before_appending(tmp_path: Path) -> None:
+    path = tmp_path / "log.jsonl"
+    log = RecordLog(path)
+    log.open_append()
+    for i in range(5):
+        log.append({"i": i})
+    log.close()
+    whole = path.read_bytes()
+    path.write_bytes(whole + encode_record({"i": 5})[:9])  # a kill mid-write
+    recs, good = RecordLog(path).read()
+    assert [r["i"] for r in recs] == list(range(5)) and good == len(whole)
+    log = RecordLog(path)
+    assert len(log.open_append()) == 5
+    log.append({"i": 5})
+    log.close()
+    assert [r["i"] for r in RecordLog(path).read()[0]] == list(range(6))
+
+
+def test_atomic_write_leaves_no_temporary(tmp_path: Path) -> None:
+    p = atomic_write_json(tmp_path / "m.json", {"a": 1})
+    atomic_write_json(p, {"a": 2})
+    assert p.read_text().count('"a": 2') == 1
+    assert [f.name for f in tmp_path.iterdir()] == ["m.json"]
+
+
+def test_store_refuses_to_overwrite_and_checks_resume(tmp_path: Path) -> None:
+    RunStore(tmp_path / "r", spec={"a": 1})
+    with pytest.raises(ContfilError, match="exists and is not empty"):
+        RunStore(tmp_path / "r", spec={"a": 1})
+    with pytest.raises(ContfilError, match="spec differs"):
+        RunStore(tmp_path / "r", spec={"a": 2}, resume=True)
+    with pytest.raises(ContfilError, match="not a run directory"):
+        RunStore(tmp_path / "nothing", resume=True)
+    RunStore(tmp_path / "r", spec={"a": 1, "output": {"plots": False}}, resume=True)
+
+
+def _graph_points(g):
+    return {bid: [(pt.p, pt.u.copy(), pt.n_unstable) for pt in br.points]
+            for bid, br in g.branches.items()}
+
+
+def _assert_equal_runs(ga, gb) -> None:
+    a, b = _graph_points(ga), _graph_points(gb)
+    assert list(a) == list(b)
+    for bid in a:
+        assert len(a[bid]) == len(b[bid]), bid  # no point lost, none duplicated
+        for (pa, ua, na), (pb, ub, nb) in zip(a[bid], b[bid], strict=True):
+            assert abs(pa - pb) <= 1e-12 and np.max(np.abs(ua - ub)) <= 1e-12 and na == nb
+    assert list(ga.special_points) == list(gb.special_points)
+    for sid, sp in ga.special_points.items():
+        assert abs(sp.point.p - gb.special_point(sid).point.p) <= 1e-12
+
+
+def _check_logs(run: Path) -> int:
+    """Parse every task log (order and uniqueness of points are checked there)."""
+    n = 0
+    for f in sorted((run / "tasks").iterdir()):
+        recs = parse_task_records(RecordLog(f).read()[0])
+        assert recs.finished, f
+        n += len(recs.points)
+    return n
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    d = tmp_path_factory.mktemp("ref")
+    spec_path = d / "spec.toml"
+    spec_path.write_text(SPEC)
+    res = run_study(load_spec(spec_path), out=d / "run", progress=Progress(enabled=False))
+    assert len(res.graph) == 2
+    return spec_path, res
+
+
+def _cli(args: list[str], env_extra: dict[str, str] | None = None) -> subprocess.Popen:
+    env = dict(os.environ, MPLBACKEND="Agg", **(env_extra or {}))
+    return subprocess.Popen([sys.executable, "-m", "contfil", *args], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+
+
+def test_injected_kills_then_resume_equal_uninterrupted(reference, tmp_path: Path) -> None:
+    spec_path, ref = reference
+    run = tmp_path / "run"
+    # 1st process: killed (SIGKILL) halfway through writing its 31st point record.
+    p = _cli(["run", str(spec_path), "--out", str(run), "--quiet"],
+             {"CONTFIL_TEST_CRASH_AFTER": "30", "CONTFIL_TEST_CRASH_TORN": "1"})
+    p.wait(timeout=120)
+    assert p.returncode == -signal.SIGKILL
+    last = sorted((run / "tasks").iterdir())[-1]
+    assert not last.read_bytes().endswith(b"\n")  # the torn record is really there
+    # 2nd process: resumes, and is killed again (cleanly between records) later.
+    p = _cli(["run", str(spec_path), "--out", str(run), "--quiet", "--resume"],
+             {"CONTFIL_TEST_CRASH_AFTER": "25"})
+    p.wait(timeout=120)
+    assert p.returncode == -signal.SIGKILL
+    # 3rd: resume to the end, in process.
+    res = run_study(load_spec(spec_path), out=run, resume=True,
+                    progress=Progress(enabled=False))
+    _assert_equal_runs(ref.graph, res.graph)
+    total = _check_logs(run)
+    # Nothing recomputed: the three processes computed each point once.
+    assert res.n_computed_points == total - 30 - 25
+
+
+def test_random_sigkill_then_resume_equal_uninterrupted(reference, tmp_path: Path) -> None:
+    spec_path, ref = reference
+    run = tmp_path / "run"
+    p = _cli(["run", str(spec_path), "--out", str(run), "--quiet"])
+    # Wait until some points are stored, then kill at a random moment.
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 60:
+        logs = list((run / "tasks").glob("*.jsonl")) if (run / "tasks").exists() else []
+        if logs and sum(f.stat().st_size for f in logs) > 20_000:
+            break
+        if p.poll() is not None:
+            break
+        time.sleep(0.01)
+    time.sleep(random.uniform(0.0, 0.5))
+    if p.poll() is None:
+        p.send_signal(signal.SIGKILL)
+    p.wait(timeout=60)
+    res = run_study(load_spec(spec_path), out=run, resume=True, progress=Progress(enabled=False))
+    _assert_equal_runs(ref.graph, res.graph)
+    _check_logs(run)
