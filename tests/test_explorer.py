@@ -102,3 +102,63 @@ def test_as_seed_accepts_tuples() -> None:
     assert s.tangent is not None and s.direction == 1
     with pytest.raises(Exception, match="switcher returned"):
         as_seed(3.0)
+
+
+def test_hopf_cycles_on_exact_circle() -> None:
+    """Hopf normal form: cycles r = sqrt(mu), period 2 pi / omega exactly."""
+    from contfil.graph.engine_adapter import default_switchers
+    from contfil.models.catalog import hopf_2d
+
+    e = hopf_2d(omega=2.0)
+    problem = EquilibriumProblem(e.model, e.param)
+    root = Seed(problem, e.u0, e.p0, direction=1)
+    settings = ContinuationSettings(ds=0.1, ds_max=0.2, p_min=-1.0, p_max=0.5,
+                                    newton_tol=1e-10)
+    ex = Explorer(root, ea.engine_continuer,
+                  ExplorerSettings(depth=1, p_range=(-1.0, 0.5), max_points=6),
+                  default_switchers(), settings, progress=Progress(enabled=False))
+    g = ex.run()
+    assert [g.g.nodes[s]["kind"] for s in g.special_points] == ["hopf"]
+    assert abs(g.special_point("S0").point.p) < 1e-8
+    cyc = g.branch("B1")
+    assert cyc.kind == "periodic_orbit" and len(cyc.points) >= 3
+    assert g.connected("B0") == [("B1", "S0")]
+    for pt in cyc.points:
+        assert pt.p > 0  # supercritical: cycles exist for mu > 0
+        assert abs(np.linalg.norm(pt.u) - np.sqrt(pt.p)) < 1e-5
+        assert abs(pt.extra["period"] - np.pi) < 1e-5
+        assert pt.stable
+
+
+def test_filament_upright_double_hopf_whirling(tmp_path) -> None:
+    """A small tip-FF filament (N = 8): upright branch -> O(2) double Hopf ->
+    whirling (a rotating wave, stable at birth), through the whole study layer."""
+    from pathlib import Path
+
+    from contfil.graph.study import run_study
+    from contfil.io.spec import loads_spec
+
+    text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
+    text = (text.replace("N = 20", "N = 8").replace("max_points = 100", "max_points = 16")
+            .replace("ds_max = 2.0", "ds_max = 4.0"))
+    res = run_study(loads_spec(text), out=tmp_path / "run", plots=False,
+                    progress=Progress(enabled=False))
+    g = res.graph
+    up = g.branch("B0")
+    assert up.kind == "equilibrium"
+    assert all(abs(pt.observables["bending_energy"]) < 1e-12 for pt in up.points)
+    dh = [s for s in g.special_points if g.g.nodes[s]["kind"] == "double_hopf"]
+    assert len(dh) == 1
+    p_dh = g.special_point(dh[0]).point.p
+    assert 25.0 < p_dh < 45.0
+    # Below the double Hopf the upright filament is stable, above it is not.
+    for pt in up.points:
+        if abs(pt.p - p_dh) > 1e-3:
+            assert pt.stable == (pt.p < p_dh)
+    rw = [b for b in g.branches if g.branch(b).kind == "rotating_wave"]
+    assert len(rw) == 1 and (dh[0], rw[0]) in [(s, b) for b, s in g.connected("B0")]
+    whirl = g.branch(rw[0])
+    assert whirl.points[0].stable  # whirling is stable at birth
+    assert all(abs(pt.extra["omega"]) > 1.0 for pt in whirl.points)
+    E = whirl.observable("bending_energy")
+    assert E[0] < 0.05 and np.all(np.diff(E) > 0)  # grows from the upright state

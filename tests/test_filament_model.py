@@ -248,3 +248,39 @@ def test_flow_hook_delegates_to_stepper() -> None:
     m = FilamentModel(load_scene(BR / "tip_ff.toml"))
     has = importlib.util.find_spec("contfil.models.filament.stepper") is not None
     assert hasattr(m, "flow") == has
+
+
+@pytest.mark.parametrize("name", ["tip_ff", "dis_sf"])
+def test_velocities_are_consistent_with_state_rate(
+    models: dict[str, FilamentModel], name: str
+) -> None:
+    """V from the constraint solve equals d/dt of the robot-arm positions along du/dt,
+    and Omega equals dexp(U, dU/dt): the whole chain (constraints, dexp_inv) agrees."""
+    from contfil.models.filament.kernels import dexp
+
+    m = models[name]
+    rng = np.random.default_rng(12)
+    u, p = rng.normal(size=57) * 0.5, _p(name)
+    du, lam, vel = m.evaluate(u, p)
+    N = 20
+    V, Om = vel[: 3 * N].reshape(N, 3), vel[3 * N :].reshape(N, 3)
+    # clamp: segment 1 does not move
+    assert np.abs(V[0]).max() < 1e-12 * np.abs(V).max()
+    assert np.abs(Om[0]).max() < 1e-12 * np.abs(Om).max()
+    h = 1e-7 / np.abs(du).max()
+    Xp, Xm = m.segment_positions(u + h * du), m.segment_positions(u - h * du)
+    assert np.allclose((Xp - Xm) / (2 * h), V, rtol=1e-6, atol=1e-7 * np.abs(V).max())
+    for n in range(1, N):
+        s = slice(3 * n - 3, 3 * n)
+        assert np.allclose(dexp(u[s], du[s]), Om[n], rtol=1e-10, atol=1e-10 * np.abs(Om).max())
+
+
+@pytest.mark.parametrize("name", MODELS)
+def test_units_rhs_scales_as_KB_over_eta(name: str) -> None:
+    """Non-dimensionalisation: f and b1 are in units of K_B, so rhs ~ K_B/eta."""
+    base = load_scene(BR / f"{name}.toml")
+    u = np.random.default_rng(13).normal(size=57) * 0.4
+    p = _p(name)
+    f0 = FilamentModel(base).rhs(u, p)
+    f1 = FilamentModel(base.replace(KB=2.5, KT=2.5, eta=0.5)).rhs(u, p)
+    assert np.allclose(f1, 5.0 * f0, rtol=1e-10, atol=1e-10 * np.abs(f0).max())

@@ -6,7 +6,6 @@ import json
 
 import networkx as nx
 import numpy as np
-import pytest
 
 from contfil.engine.branch import (
     BRANCH_POINT,

@@ -124,7 +124,9 @@ class ContinuationSettings:
         if self.p_min >= self.p_max:
             raise ValueError(f"ContinuationSettings: p_min={self.p_min} >= p_max={self.p_max}")
         if self.max_points < 1:
-            raise ValueError(f"ContinuationSettings: max_points must be >= 1, got {self.max_points}")
+            raise ValueError(
+                f"ContinuationSettings: max_points must be >= 1, got {self.max_points}"
+            )
 
 
 class _Rec:
@@ -258,7 +260,9 @@ class Continuation:
             X, info = self.corrector(F, jvp, X0, s.newton_tol, s.newton_max_iter)
             return np.asarray(X, dtype=float), _as_info(info)
         if self.problem.dense:
-            return newton_dense(F, lambda X: self._jac_aug(X, border), X0, s.newton_tol, s.newton_max_iter)
+            return newton_dense(
+                F, lambda X: self._jac_aug(X, border), X0, s.newton_tol, s.newton_max_iter
+            )
         kw = dict(s.krylov)
         P = self._aug_preconditioner(X0, border)
         if P is not None:
@@ -266,13 +270,34 @@ class Continuation:
         return newton_krylov(F, jvp, X0, s.newton_tol, max(s.newton_max_iter, 15), **kw)
 
     def _aug_preconditioner(self, X: Array, border: Array) -> Callable[[Array], Array] | None:
-        """Block preconditioner ``diag(P, 1/border_p)`` of the bordered system
-        from ``problem.preconditioner(x, p)`` (an approximate ``G_x^{-1}``);
-        the bordering is a rank-2 change that GMRES absorbs in a few steps."""
+        """Approximate inverse of the bordered matrix ``[[G_x, G_p], [border]]``.
+
+        With ``problem.sparse_jacobian(x, p)`` (a scipy sparse ``G_x``): a sparse
+        LU of the bordered matrix itself (exact, and regular at folds). Else
+        with ``problem.preconditioner(x, p)`` (an approximate ``G_x^{-1}``):
+        the block-diagonal ``diag(P, 1/border_p)``. Else ``None``.
+        """
+        import scipy.sparse as sp
+        from scipy.sparse.linalg import splu
+
+        x, p = X[:-1], float(X[-1])
+        spj = getattr(self.problem, "sparse_jacobian", None)
+        Js = spj(x, p) if callable(spj) else None
+        if Js is not None:
+            gp = self.problem.dp(x, p)
+            M = sp.bmat(
+                [
+                    [Js, sp.csr_matrix(gp.reshape(-1, 1))],
+                    [
+                        sp.csr_matrix(border[:-1].reshape(1, -1)),
+                        sp.csr_matrix(border[-1:].reshape(1, 1)),
+                    ],
+                ]
+            )
+            lu = splu(sp.csc_matrix(M))
+            return lu.solve
         pre = getattr(self.problem, "preconditioner", None)
-        if not callable(pre):
-            return None
-        P = pre(X[:-1], float(X[-1]))
+        P = pre(x, p) if callable(pre) else None
         if P is None:
             return None
         dp = float(border[-1]) if border[-1] != 0.0 else 1.0
@@ -288,7 +313,9 @@ class Continuation:
         if pb.dense:
             M = self._jac_aug(X, c)
             if not np.all(np.isfinite(M)):
-                raise NonFiniteError(f"bordered Jacobian is not finite at {self.branch.param}={p:.10g}")
+                raise NonFiniteError(
+                    f"bordered Jacobian is not finite at {self.branch.param}={p:.10g}"
+                )
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", sla.LinAlgWarning)
                 lu, piv = sla.lu_factor(M, check_finite=False)
@@ -315,14 +342,17 @@ class Continuation:
             fro = float(np.linalg.norm(Mown)) / np.sqrt(n + 1)
             with np.errstate(divide="ignore"):
                 logabs = float(np.sum(np.log(np.abs(d))))
-            log_det = (
-                logabs
-                + 0.5 * float(np.log(self._ip(t, t)))
-                - (n + 1) * float(np.log(fro))
-            )
+            log_det = logabs + 0.5 * float(np.log(self._ip(t, t))) - (n + 1) * float(np.log(fro))
             return EventContext(
-                pb, self.settings, X, tau, self.w, jacobian=M[:-1, :-1].copy(), gp=M[:-1, -1].copy(),
-                log_det=log_det, det_sign=sign,
+                pb,
+                self.settings,
+                X,
+                tau,
+                self.w,
+                jacobian=M[:-1, :-1].copy(),
+                gp=M[:-1, -1].copy(),
+                log_det=log_det,
+                det_sign=sign,
             )
         gp = pb.dp(x, p)
         g0 = None
@@ -333,8 +363,21 @@ class Continuation:
 
         op = LinearOperator((n + 1, n + 1), matvec=lambda v: apply(np.asarray(v, float).ravel()))
         P = self._aug_preconditioner(X, c)
-        Mop = None if P is None else LinearOperator((n + 1, n + 1), matvec=lambda v: P(np.asarray(v, float).ravel()))
-        t, _ = gmres(op, rhs, x0=border_tangent, rtol=1e-10, atol=0.0, restart=min(n + 1, 80), maxiter=20, M=Mop)
+        Mop = (
+            None
+            if P is None
+            else LinearOperator((n + 1, n + 1), matvec=lambda v: P(np.asarray(v, float).ravel()))
+        )
+        t, _ = gmres(
+            op,
+            rhs,
+            x0=border_tangent,
+            rtol=1e-9,
+            atol=0.0,
+            restart=min(n + 1, 60),
+            maxiter=10,
+            M=Mop,
+        )
         tau = self._unit(t)
         ctau = self.w * tau
 
@@ -346,13 +389,22 @@ class Continuation:
         return ctx
 
     # ------------------------------------------------------------------ points
-    def _make_point(self, ctx: EventContext, info: NewtonInfo | None, t0: float, evals0: int) -> Point:
+    def _make_point(
+        self, ctx: EventContext, info: NewtonInfo | None, t0: float, evals0: int
+    ) -> Point:
         pb, s = self.problem, self.settings
         x, p = ctx.x, ctx.p
         params_at = getattr(pb, "params_at", None)
         params = params_at(p) if callable(params_at) else np.array([p])
-        pt = Point(u=np.array(pb.state(x), dtype=float), p=p, params=params, kind=pb.kind,
-                   extra=dict(pb.extra(x)), tangent=ctx.tangent.copy(), step=self.ds)
+        pt = Point(
+            u=np.array(pb.state(x), dtype=float),
+            p=p,
+            params=params,
+            kind=pb.kind,
+            extra=dict(pb.extra(x)),
+            tangent=ctx.tangent.copy(),
+            step=self.ds,
+        )
         if s.compute_stability:
             st = ctx.stability
             pt.eigenvalues = np.asarray(st.values, dtype=complex)
@@ -373,7 +425,9 @@ class Continuation:
         return pt
 
     def _event_values(self, ctx: EventContext) -> dict[str, Array]:
-        return {ev.name: np.atleast_1d(np.asarray(ev.values(ctx), dtype=float)) for ev in self.events}
+        return {
+            ev.name: np.atleast_1d(np.asarray(ev.values(ctx), dtype=float)) for ev in self.events
+        }
 
     # ------------------------------------------------------------------ start
     def _start(self) -> Point:
@@ -384,7 +438,9 @@ class Continuation:
         X0 = np.concatenate([x0, [p0]])
         r0 = pb.residual(x0, p0)
         if not np.all(np.isfinite(r0)):
-            raise NonFiniteError(f"residual is not finite at the starting point {self.branch.param}={p0:.10g}")
+            raise NonFiniteError(
+                f"residual is not finite at the starting point {self.branch.param}={p0:.10g}"
+            )
         info = NewtonInfo(True, 0, float(np.max(np.abs(r0))))
         if info.residual > s.newton_tol:
             e_p = np.zeros(n + 1)
@@ -393,7 +449,8 @@ class Continuation:
             if not info.converged:
                 raise ConvergenceError(
                     f"could not correct the starting point at {self.branch.param}={p0:.10g}: "
-                    f"residual {info.residual:.3e} after {info.iterations} iterations ({info.reason})"
+                    f"residual {info.residual:.3e} after {info.iterations} iterations "
+                    f"({info.reason})"
                 )
         if self._tangent0 is not None:
             guess = self._unit(self.direction * self._tangent0)
@@ -432,12 +489,24 @@ class Continuation:
                     t = t * np.sign(t[k])
         else:
             gp = pb.dp(x, p)
-            op = LinearOperator((n, n), matvec=lambda v: pb.jvp(x, p, np.asarray(v, float).ravel()))
-            pre = getattr(pb, "preconditioner", None)
-            P = pre(x, p) if callable(pre) else None
-            Mop = None if P is None else LinearOperator((n, n), matvec=lambda v: P(np.asarray(v, float).ravel()))
-            y, _ = gmres(op, -gp, rtol=1e-10, atol=0.0, restart=min(n, 80), maxiter=20, M=Mop)
-            t = np.concatenate([y, [1.0]])
+            P = self._aug_preconditioner(X0, e)
+            opa = LinearOperator(
+                (n + 1, n + 1),
+                matvec=lambda v: np.concatenate(
+                    [
+                        pb.jvp(x, p, np.asarray(v, float).ravel()[:n]) + float(v[n]) * gp,
+                        [float(v[n])],
+                    ]
+                ),
+            )
+            Mop = (
+                None
+                if P is None
+                else LinearOperator(
+                    (n + 1, n + 1), matvec=lambda v: P(np.asarray(v, float).ravel())
+                )
+            )
+            t, _ = gmres(opa, e, rtol=1e-9, atol=0.0, restart=min(n + 1, 60), maxiter=10, M=Mop)
         t = self._unit(t)
         if t[-1] != 0.0:
             t = t * np.sign(t[-1])
@@ -512,7 +581,10 @@ class Continuation:
             )
             if not s.adapt or ds <= s.ds_min * 1.0001:
                 exc_cls = NonFiniteError if "non-finite" in reason else ConvergenceError
-                raise exc_cls(f"continuation stopped: {last_err}; step cannot be reduced below ds_min={s.ds_min}")
+                raise exc_cls(
+                    f"continuation stopped: {last_err}; "
+                    f"step cannot be reduced below ds_min={s.ds_min}"
+                )
             self.ds = max(ds * s.shrink, s.ds_min)
         assert ctx is not None and info is not None
 
@@ -562,9 +634,12 @@ class Continuation:
         self._prev = rec
         pb.accept(X[:-1], float(X[-1]))
         if s.verbose:
-            print(f"[cont] {len(self.branch.points):4d} {self.branch.param}={pt.p:.8g} ds={self.ds:.3g} "
-                  f"it={info.iterations} n_unstable={pt.n_unstable}"
-                  + "".join(f" *{sp.kind}" for _, sp in new_special))
+            print(
+                f"[cont] {len(self.branch.points):4d} {self.branch.param}={pt.p:.8g} "
+                f"ds={self.ds:.3g} "
+                f"it={info.iterations} n_unstable={pt.n_unstable}"
+                + "".join(f" *{sp.kind}" for _, sp in new_special)
+            )
 
         if s.adapt:
             if info.iterations <= s.fast_iter:
@@ -637,7 +712,9 @@ class Continuation:
                 # Illinois: halve the retained end's value to avoid stalling.
                 A = (*A[:4], 0.5 * A[4])
                 B = M_
-            if abs(B[0] - A[0]) <= s.event_tol or (s_prev is not None and abs(sm - s_prev) <= s.event_tol):
+            if abs(B[0] - A[0]) <= s.event_tol or (
+                s_prev is not None and abs(sm - s_prev) <= s.event_tol
+            ):
                 break
             s_prev = sm
         a, b = A[0], B[0]

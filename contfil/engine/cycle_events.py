@@ -15,8 +15,8 @@ Multiplier tests skip the trivial multipliers (flagged by their eigenvectors
 in :mod:`contfil.engine.floquet`). Detection needs both the count of
 multipliers of the tested type outside the unit circle *and* the total
 unstable count to change (a complex pair becoming real outside the circle is
-no bifurcation); localisation is on the signed distance to the circle of the
-critical multiplier, which is continuous along the branch.
+no bifurcation); localisation is on ``log|μ|`` of the multiplier nearest the unit circle
+(multiplicatively), which is continuous along the branch.
 """
 
 from __future__ import annotations
@@ -133,8 +133,12 @@ class _MultiplierEvent(Event):
             c = self._candidates(ctx.stability)
             if c.size == 0:
                 return float("nan")
-            k = int(np.argmin(np.abs(np.abs(c) - 1.0)))
-            return float(np.abs(c[k]) - 1.0)
+            # log|μ|: the multiplier nearest the circle in the multiplicative
+            # sense (|μ| - 1 would prefer 1e-3 over 2 and lose the crossing one)
+            with np.errstate(divide="ignore"):
+                lg = np.log(np.abs(c))
+            k = int(np.argmin(np.abs(lg)))
+            return float(lg[k])
 
         return g
 
@@ -177,7 +181,8 @@ class TorusEvent(_MultiplierEvent):
         c = self._candidates(st)
         if c.size == 0:
             return None
-        k = int(np.argmin(np.abs(np.abs(c) - 1.0)))
+        with np.errstate(divide="ignore"):
+            k = int(np.argmin(np.abs(np.log(np.abs(c)))))
         mu = c[k] if c[k].imag >= 0 else np.conj(c[k])
         if abs(abs(mu) - 1.0) > 1e-4:
             return None

@@ -60,7 +60,9 @@ def dense_stability(J: Array, vectors: bool = False) -> Stability:
     res = float("nan")
     if V is not None and w.size:
         res = float(np.max(np.linalg.norm(J @ V - V * w, axis=0)))
-    return Stability(values=w, kind="eigenvalues", vectors=V, residual=res, info={"method": "dense"})
+    return Stability(
+        values=w, kind="eigenvalues", vectors=V, residual=res, info={"method": "dense"}
+    )
 
 
 def shift_invert_stability(
@@ -92,9 +94,13 @@ def shift_invert_stability(
         ``v -> J v``, used only to report the eigen-residual.
     """
     if k >= n - 1:
-        raise ValueError(f"shift_invert_stability: k={k} must be < n-1={n - 1}; use dense_stability")
+        raise ValueError(
+            f"shift_invert_stability: k={k} must be < n-1={n - 1}; use dense_stability"
+        )
     s = float(np.real(sigma))
-    op = LinearOperator((n, n), matvec=lambda v: apply_inverse(np.asarray(v, float).ravel()), dtype=float)
+    op = LinearOperator(
+        (n, n), matvec=lambda v: apply_inverse(np.asarray(v, float).ravel()), dtype=float
+    )
     try:
         nu, V = eigs(op, k=k, which="LM", tol=tol, return_eigenvectors=True)
     except ArpackNoConvergence as exc:
@@ -106,11 +112,16 @@ def shift_invert_stability(
     res = float("nan")
     if matvec is not None:
         res = max(
-            float(np.linalg.norm(matvec(V[:, j].real) + 1j * matvec(V[:, j].imag) - lam[j] * V[:, j]))
+            float(
+                np.linalg.norm(matvec(V[:, j].real) + 1j * matvec(V[:, j].imag) - lam[j] * V[:, j])
+            )
             for j in range(lam.size)
         )
     return Stability(
-        values=lam, kind="eigenvalues", vectors=V if vectors else None, residual=res,
+        values=lam,
+        kind="eigenvalues",
+        vectors=V if vectors else None,
+        residual=res,
         info={"method": "shift-invert", "sigma": s, "k": k},
     )
 

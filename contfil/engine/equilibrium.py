@@ -46,6 +46,10 @@ class EquilibriumProblem(Problem):
         large (non-dense) problems.
     eig_shift:
         Real shift of the shift-invert Arnoldi.
+    use_model_jacobian:
+        Use ``model.jacobian`` / ``model.jacobian_sparse`` when present
+        (``False`` forces the engine's own central differences with
+        ``fd_rel``, e.g. to study what the finite-difference step costs).
     """
 
     kind = EQUILIBRIUM
@@ -60,6 +64,7 @@ class EquilibriumProblem(Problem):
         fd_rel: float = 1e-5,
         n_eigs: int = 10,
         eig_shift: float = 0.0,
+        use_model_jacobian: bool = True,
     ) -> None:
         self.model = model
         self.param = param
@@ -78,8 +83,12 @@ class EquilibriumProblem(Problem):
         self.n_eigs = int(n_eigs)
         self.eig_shift = float(eig_shift)
         self.rhs_evals = 0
-        self._has_jac = callable(getattr(model, "jacobian", None))
-        self._has_sparse_jac = callable(getattr(model, "jacobian_sparse", None))
+        self._has_jac = use_model_jacobian and callable(getattr(model, "jacobian", None))
+        self._has_sparse_jac = use_model_jacobian and callable(
+            getattr(model, "jacobian_sparse", None)
+        )
+        self._sp_cache: tuple | None = None
+        self._jac_cache: tuple | None = None
 
     # --- helpers -----------------------------------------------------------
     def params_at(self, p: float) -> Array:
@@ -93,6 +102,16 @@ class EquilibriumProblem(Problem):
         return np.asarray(self.model.rhs(x, self.params_at(p)), dtype=float)
 
     def jacobian(self, x: Array, p: float) -> Array:
+        """Dense ``rhs_u`` (the model's, or central differences); the last one
+        is cached, since the tangent and the eigenvalues need the same one."""
+        key = (np.asarray(x, float).tobytes(), float(p))
+        if self._jac_cache is not None and self._jac_cache[0] == key:
+            return self._jac_cache[1]
+        J = self._jacobian(x, p)
+        self._jac_cache = (key, J)
+        return J
+
+    def _jacobian(self, x: Array, p: float) -> Array:
         if self._has_jac:
             return np.asarray(self.model.jacobian(x, self.params_at(p)), dtype=float)
         if self._has_sparse_jac:
@@ -110,7 +129,7 @@ class EquilibriumProblem(Problem):
         if self._has_jac and self.dense:
             return self.jacobian(x, p) @ v
         if self._has_sparse_jac:
-            return self.model.jacobian_sparse(x, self.params_at(p)) @ v
+            return self.sparse_jacobian(x, p) @ v
         # Central difference: one more rhs call than one-sided, but O(eps^2/3)
         # accuracy, which Krylov-based localisation of events needs.
         eps = fd_step(x, v, rel=1e-5)
@@ -125,27 +144,30 @@ class EquilibriumProblem(Problem):
         h = self.fd_rel * (1.0 + abs(p))
         return (self.residual(x, p + h) - self.residual(x, p - h)) / (2.0 * h)
 
-    def preconditioner(self, x: Array, p: float):  # noqa: ANN201
-        """Approximate ``G_x^{-1}`` for the matrix-free path: a sparse LU of
-        ``model.jacobian_sparse`` when the model has one, else ``None``."""
+    def sparse_jacobian(self, x: Array, p: float):  # noqa: ANN201
+        """``G_x`` as a scipy sparse matrix (``model.jacobian_sparse``), or ``None``.
+
+        Cached for the last ``(x, p)``: Krylov solves call it once per product.
+        """
         if not self._has_sparse_jac:
             return None
-        import scipy.sparse as sp
-        from scipy.sparse.linalg import splu
-
-        lu = splu(sp.csc_matrix(self.model.jacobian_sparse(x, self.params_at(p))))
-        return lu.solve
+        key = (x.tobytes(), float(p))
+        if self._sp_cache is None or self._sp_cache[0] != key:
+            self._sp_cache = (key, self.model.jacobian_sparse(x, self.params_at(p)).tocsr())
+        return self._sp_cache[1]
 
     def stability(self, x: Array, p: float, vectors: bool = False) -> Stability:
         """Eigenvalues of ``rhs_u`` (all when dense, leading ``n_eigs`` otherwise)."""
         if self.dense:
             J = self.jacobian(x, p)
             if not np.all(np.isfinite(J)):
-                raise NonFiniteError(f"Jacobian of {self.model.name!r} is not finite at {self.param}={p}")
+                raise NonFiniteError(
+                    f"Jacobian of {self.model.name!r} is not finite at {self.param}={p}"
+                )
             return dense_stability(J, vectors=vectors)
         k = min(self.n_eigs, self.n - 2)
         if self._has_sparse_jac:
-            Js = self.model.jacobian_sparse(x, self.params_at(p))
+            Js = self.sparse_jacobian(x, p)
             inv = inverse_from_sparse(Js, self.eig_shift)
             mv = lambda v: Js @ v  # noqa: E731
         elif self._has_jac:

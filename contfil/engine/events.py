@@ -175,7 +175,9 @@ class Event:
         ok = np.isfinite(v0) & np.isfinite(v1)
         return [int(j) for j in np.flatnonzero(ok & (np.sign(v0) * np.sign(v1) < 0))]
 
-    def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable[[EventContext], float]:
+    def localiser(
+        self, ctx0: EventContext, ctx1: EventContext, j: int
+    ) -> Callable[[EventContext], float]:
         """Scalar function whose root is the special point (default: component ``j``)."""
         return lambda ctx: float(np.atleast_1d(self.values(ctx))[j])
 
@@ -253,10 +255,14 @@ class BranchPointEvent(Event):
         Mop = None
         P = ctx.precondition
         if P is not None:
-            Mop = LinearOperator((m + 1, m + 1), matvec=lambda z: np.concatenate(
-                [P(np.asarray(z, float).ravel()[:m]), [np.asarray(z, float).ravel()[m]]]))
+            Mop = LinearOperator(
+                (m + 1, m + 1),
+                matvec=lambda z: np.concatenate(
+                    [P(np.asarray(z, float).ravel()[:m]), [np.asarray(z, float).ravel()[m]]]
+                ),
+            )
         z0 = np.concatenate([b, [0.0]])
-        z, _ = gmres(op, rhs, x0=z0, rtol=1e-10, atol=0.0, restart=min(m + 1, 80), maxiter=20, M=Mop)
+        z, _ = gmres(op, rhs, x0=z0, rtol=1e-9, atol=0.0, restart=min(m + 1, 60), maxiter=10, M=Mop)
         return float(z[m]), z[:m]
 
     def localiser(self, ctx0, ctx1, j):  # noqa: ANN001, ANN201
@@ -332,7 +338,9 @@ class HopfEvent(Event):
     kind = HOPF
     needs_stability = True
 
-    def __init__(self, imag_tol: float = 1e-7, mult_rtol: float = 1e-5, accept_tol: float = 1e-5) -> None:
+    def __init__(
+        self, imag_tol: float = 1e-7, mult_rtol: float = 1e-5, accept_tol: float = 1e-5
+    ) -> None:
         self.imag_tol = imag_tol
         self.mult_rtol = mult_rtol
         self.accept_tol = accept_tol
@@ -462,7 +470,7 @@ class NodeFocusEvent(Event):
             return np.array([np.nan])
         a = v[0]
         if abs(a.imag) > self.imag_tol * max(1.0, abs(a)):
-            return np.array([-(2.0 * a.imag) ** 2])
+            return np.array([-((2.0 * a.imag) ** 2)])
         b = v[self.m]
         if abs(b.imag) > self.imag_tol * max(1.0, abs(b)):
             # The leading eigenvalue is real but the next is complex: the

@@ -13,11 +13,13 @@ consecutive Arnoldi iterations. The space is exhausted exactly at ``k = n``.
 
 Trivial multipliers (``+1``, forced by the time shift along ``f(u)`` and by
 each continuous symmetry along ``L u``) are identified by their
-*eigenvectors*: the Ritz vectors with the largest projection onto
-``span{f(u), L_1 u, ...}``, as many as the rank of that span (a rotating
-wave has ``f(u) ∥ L u``: rank 1; a standing wave rank 2). Closeness to 1
-alone is not used, so a genuine multiplier crossing +1 next to a trivial one
-(a branch point of cycles) is not hidden.
+*eigenvectors*, never by closeness to 1: their eigenspace is
+``span{f(u), L_1 u, ...}`` (rank 1 for a rotating wave, where ``f ∥ L u``;
+rank 2 for a standing wave). By default that span is deflated (see
+:func:`floquet_multipliers`); alternatively :func:`flag_trivial` flags the
+Ritz vectors with the largest projection onto it. Either way a genuine
+multiplier crossing +1 next to a trivial one (a branch point of cycles) is
+not hidden.
 """
 
 from __future__ import annotations
@@ -83,6 +85,7 @@ def arnoldi_eigs(
     """
     nev = max(1, min(int(nev), n))
     kmax = min(n, int(kmax) if kmax is not None else max(3 * nev, 40))
+    kmax = max(kmax, 1)
     rng = np.random.default_rng(seed)
     v = rng.standard_normal(n) if v0 is None else np.array(v0, dtype=float)
     V = np.zeros((n, kmax + 1))
@@ -123,13 +126,16 @@ def arnoldi_eigs(
     order = _sort_leading(vals)
     vals, Y = vals[order], Y[:, order]
     X = V[:, :k] @ Y
-    X /= np.linalg.norm(X, axis=0, keepdims=True)
-    res = np.abs(H[k, k - 1] * Y[-1, :]) if k < kmax + 1 else np.zeros(k)
+    norms = np.linalg.norm(X, axis=0)
+    X /= norms[None, :]
+    res = np.abs(H[k, k - 1] * Y[-1, :]) / norms
     info = {
         "iterations": k,
         "converged": converged,
         "ritz_change": float(change),
         "residuals": res,
+        # X = V[:, :k] @ coeffs: lets a caller rebuild M X from stored M V
+        "coeffs": Y / norms[None, :],
     }
     return vals, X, info
 
@@ -193,6 +199,7 @@ def floquet_multipliers(
     kmax: int | None = None,
     period: float | None = None,
     v0: Array | None = None,
+    deflate: bool = True,
 ) -> Stability:
     """Floquet multipliers of a (relative) periodic orbit, matrix-free.
 
@@ -203,30 +210,96 @@ def floquet_multipliers(
     n:
         State dimension.
     trivial_directions:
-        ``f(u)`` and ``L u`` per continuous symmetry (see :func:`flag_trivial`).
+        ``f(u)`` and ``L u`` per continuous symmetry.
     nev, tol, kmax:
         See :func:`arnoldi_eigs` (13 leading values converged to 1e-8).
     period:
         If given, ``info["exponents"] = log(μ)/T`` is filled.
+    deflate:
+        ``True`` (default): the span ``Q`` of the trivial directions is
+        invariant (``M f = f``, ``M L u = L u``), so in the basis ``[Q, Q⊥]``
+        the monodromy is block triangular and its spectrum is exactly that of
+        ``QᵀMQ`` (the trivial multipliers, ≈ 1) together with that of the
+        compressed operator ``Q⊥ᵀ M Q⊥``, on which Arnoldi runs. This is
+        necessary, not cosmetic: a standing wave has the *semisimple* double
+        multiplier 1, and Arnoldi from one start vector sees only one vector
+        of a semisimple eigenspace. No multiplier is hidden — a genuine one
+        crossing +1 (branch point, fold's Jordan partner) stays in the
+        compressed spectrum. ``False``: plain Arnoldi and :func:`flag_trivial`
+        by eigenvector projection.
 
     Returns
     -------
     Stability
         ``kind="multipliers"``, values sorted by decreasing modulus, trivial
-        flags, Ritz vectors (columns), ``residual`` = the largest Ritz
-        residual among the ``nev`` leading pairs, and ``info`` with
-        ``iterations`` (operator applications), ``converged``,
-        ``ritz_change``, ``trivial_info``.
+        flags, eigenvectors (columns), ``residual`` = the largest Ritz
+        residual among the ``nev`` leading non-trivial pairs, and ``info`` with
+        ``iterations`` (Arnoldi steps), ``operator_applications``,
+        ``converged``, ``ritz_change``, ``trivial_info``.
     """
     calls = {"n": 0}
+    Q, _, rank = _qr_rank(
+        np.column_stack([np.asarray(d, dtype=float) for d in trivial_directions])
+        if len(trivial_directions) else np.zeros((n, 0)),
+        1e-6,
+    )
+    if not deflate or rank == 0:
 
-    def mv(v: Array) -> Array:
-        calls["n"] += 1
-        return apply_monodromy(v)
+        def mv(v: Array) -> Array:
+            calls["n"] += 1
+            return apply_monodromy(v)
 
-    vals, X, info = arnoldi_eigs(mv, n, nev=nev, tol=tol, kmax=kmax, v0=v0)
-    trivial, tinfo = flag_trivial(vals, X, list(trivial_directions))
-    lead = min(nev, len(vals))
+        vals, X, info = arnoldi_eigs(mv, n, nev=nev, tol=tol, kmax=kmax, v0=v0)
+        trivial, tinfo = flag_trivial(vals, X, list(trivial_directions))
+    else:
+        raw: list[Array] = []
+
+        def mvp(v: Array) -> Array:
+            calls["n"] += 1
+            w = np.asarray(apply_monodromy(v), dtype=float)
+            raw.append(w)
+            return w - Q @ (Q.T @ w)
+
+        rng = np.random.default_rng(0)
+        start = rng.standard_normal(n) if v0 is None else np.array(v0, dtype=float)
+        start = start - Q @ (Q.T @ start)
+        m = n - rank
+        if m > 0:
+            nv, Y, info = arnoldi_eigs(mvp, n, nev=min(nev, m), tol=tol,
+                                       kmax=min(m, kmax if kmax is not None else max(3 * nev, 40)),
+                                       v0=start)
+            k = info["iterations"]
+            W = np.column_stack(raw[:k])
+            MY = W @ info["coeffs"]
+            # lift the compressed eigenvectors: x = y + Q z, z = Qᵀ M y / (μ - 1)
+            den = nv - 1.0
+            den = np.where(np.abs(den) < 1e-12, 1e-12, den)
+            Xn = Y + Q @ ((Q.T @ MY) / den[None, :])
+            Xn /= np.linalg.norm(Xn, axis=0, keepdims=True)
+        else:
+            nv, Xn, info = np.zeros(0, complex), np.zeros((n, 0), complex), {
+                "iterations": 0, "converged": True, "ritz_change": 0.0, "residuals": np.zeros(0)}
+        MQ = np.column_stack([np.asarray(apply_monodromy(q), dtype=float) for q in Q.T])
+        calls["n"] += rank
+        R = Q.T @ MQ
+        tv, tY = np.linalg.eig(R)
+        Xt = Q @ tY
+        vals = np.concatenate([tv.astype(complex), nv])
+        X = np.column_stack([Xt.astype(complex), Xn])
+        trivial = np.concatenate([np.ones(rank, bool), np.zeros(nv.size, bool)])
+        order = _sort_leading(vals)
+        vals, X, trivial = vals[order], X[:, order], trivial[order]
+        tinfo = {
+            "rank": rank,
+            "method": "deflation",
+            "values": tv,
+            "distance_from_one": float(np.max(np.abs(tv - 1.0))),
+            # how far span{f, Lu} is from invariant (discretisation, unconverged orbit)
+            "invariance_defect": float(np.linalg.norm(MQ - Q @ R)),
+        }
+        info["residuals"] = np.asarray(info["residuals"])
+    lead = min(nev, len(info["residuals"]))
+    info.pop("coeffs", None)
     info["operator_applications"] = calls["n"]
     info["trivial_info"] = tinfo
     if period is not None and period > 0:

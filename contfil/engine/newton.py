@@ -97,7 +97,9 @@ def newton_dense(
     r = F(X)
     res = _norm(r)
     if not np.isfinite(res):
-        raise NonFiniteError(f"newton_dense: initial residual is not finite (|X|={np.linalg.norm(X):.3g})")
+        raise NonFiniteError(
+            f"newton_dense: initial residual is not finite (|X|={np.linalg.norm(X):.3g})"
+        )
     hist = [res]
     for it in range(1, max_iter + 1):
         if res <= tol and it > min_iter:
@@ -154,7 +156,9 @@ def newton_krylov(
     r = F(X)
     res = _norm(r)
     if not np.isfinite(res):
-        raise NonFiniteError(f"newton_krylov: initial residual is not finite (|X|={np.linalg.norm(X):.3g})")
+        raise NonFiniteError(
+            f"newton_krylov: initial residual is not finite (|X|={np.linalg.norm(X):.3g})"
+        )
     hist = [res]
     lin_it = 0
     for it in range(1, max_iter + 1):
@@ -164,7 +168,9 @@ def newton_krylov(
         A = LinearOperator((n, n), matvec=lambda v, Xc=Xc: jvp(Xc, np.asarray(v, float).ravel()))
         M = None
         if preconditioner is not None:
-            M = LinearOperator((n, n), matvec=lambda v: preconditioner(np.asarray(v, float).ravel()))
+            M = LinearOperator(
+                (n, n), matvec=lambda v: preconditioner(np.asarray(v, float).ravel())
+            )
         count = [0]
 
         def _cb(_: object, count: list[int] = count) -> None:
@@ -172,8 +178,15 @@ def newton_krylov(
 
         eta = min(gmres_rtol, max(res, 1e-12))
         dX, ok = gmres(
-            A, -r, rtol=eta, atol=0.0, restart=gmres_restart, maxiter=gmres_maxiter, M=M,
-            callback=_cb, callback_type="pr_norm",
+            A,
+            -r,
+            rtol=eta,
+            atol=0.0,
+            restart=gmres_restart,
+            maxiter=gmres_maxiter,
+            M=M,
+            callback=_cb,
+            callback_type="pr_norm",
         )
         lin_it += count[0]
         if not np.all(np.isfinite(dX)):

@@ -125,7 +125,7 @@ class PeriodicOrbitProblem(Problem):
                     f"as {model.name!r}"
                 )
         self.steps = int(steps)
-        self.ops = FlowOps(self.solve_model, steps=self.steps)
+        self.ops = FlowOps(self.solve_model, steps=self.steps, param_index=self.ip)
         self._full_ops: FlowOps | None = None if self.subspace is not None else self.ops
         self.dim = int(self.solve_model.dim)
         self.n = self.dim + self.n_extra
@@ -196,8 +196,11 @@ class PeriodicOrbitProblem(Problem):
         return J
 
     def dp(self, x: Array, p: float) -> Array:
-        h = 1e-6 * (1.0 + abs(p))
-        return (self.residual(x, p + h) - self.residual(x, p - h)) / (2 * h)
+        u, T = self.split(x)
+        d = self.ops.dflow_dp(u, self.params_at(p), T)
+        G = self._drift_map(x)
+        d = d if G is None else G @ d
+        return np.concatenate([d, np.zeros(self.n_extra)])
 
     def accept(self, x: Array, p: float) -> None:
         self.set_reference(x[: self.dim], p)

@@ -104,8 +104,13 @@ def branch_point_tangents(
     a22 = d2(Phi[:, 1], Phi[:, 1])
     a12 = d2(Phi[:, 0], Phi[:, 1])
     disc = a12 * a12 - a11 * a22
-    info = {"a11": a11, "a12": a12, "a22": a22, "discriminant": disc,
-            "singular_values": sv[-2:].tolist() if sv.size >= 2 else sv.tolist()}
+    info = {
+        "a11": a11,
+        "a12": a12,
+        "a22": a22,
+        "discriminant": disc,
+        "singular_values": sv[-2:].tolist() if sv.size >= 2 else sv.tolist(),
+    }
     big = max(abs(a11), abs(a12), abs(a22))
     dirs: list[Array] = []
     if big > 0 and disc > 1e-10 * big * big:
@@ -176,7 +181,9 @@ def switch_at_branch_point(
         (``meta["from_branch_point"] = p*``).
     """
     if special_point.kind != BRANCH_POINT:
-        raise ContfilError(f"switch_at_branch_point needs a {BRANCH_POINT!r}, got {special_point.kind!r}")
+        raise ContfilError(
+            f"switch_at_branch_point needs a {BRANCH_POINT!r}, got {special_point.kind!r}"
+        )
     s = settings or ContinuationSettings()
     pt = special_point.point
     x = np.asarray(pt.u, float)
@@ -203,13 +210,16 @@ def switch_at_branch_point(
                 f"branch switching at {problem.kind} {getattr(problem, 'param', 'p')}={pt.p:.10g}: "
                 f"first point did not converge (residual {ninfo.residual:.3e}, direction {sgn:+d})"
             )
-        cont = Continuation(problem, X1[:-1], float(X1[-1]), s, tangent=t, events=events, corrector=corrector)
+        cont = Continuation(
+            problem, X1[:-1], float(X1[-1]), s, tangent=t, events=events, corrector=corrector
+        )
         br = cont.run()
         br.points.insert(0, pt)
         for sp in br.special_points:
             sp.index += 1
-        br.meta.update({"from_branch_point": float(pt.p), "switch_direction": int(sgn),
-                        "switch_info": info})
+        br.meta.update(
+            {"from_branch_point": float(pt.p), "switch_direction": int(sgn), "switch_info": info}
+        )
         out.append(br)
     return out
 

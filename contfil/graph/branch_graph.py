@@ -333,6 +333,8 @@ class BranchGraph:
                     f"    {s['label']:<5} {s['kind']:<18} {br.param}={s['p']:.8g}"
                     + ("" if s["switchable"] else "  (not switchable)")
                     + (f"  -> {', '.join(born)}" if born else "")
+                    + (f"  [switch failed: {sp.data['switch_error'][:120]}]"
+                       if (sp := self._sps[sid]).data.get("switch_error") else "")
                 )
         return "\n".join(lines)
 

@@ -242,8 +242,13 @@ def engine_continuer(seed: Seed, direction: int, settings: Any,
 # ---------------------------------------------------------------- switching
 
 
-def default_switchers() -> SwitcherRegistry:
-    """Engine switching functions by special-point kind (those that exist)."""
+def default_switchers(standing_subspace: str | None = "auto") -> SwitcherRegistry:
+    """Engine switching functions by special-point kind (those that exist).
+
+    ``standing_subspace``: invariant subspace in which standing waves born
+    at an O(2) double Hopf are solved (``"auto"``: the model's only one, if
+    it declares exactly one; ``None``: the full model with a drift unknown).
+    """
     reg = SwitcherRegistry()
     try:
         sw = importlib.import_module("contfil.engine.switching")
@@ -254,27 +259,96 @@ def default_switchers() -> SwitcherRegistry:
     try:
         cs = importlib.import_module("contfil.engine.cycle_switching")
     except ImportError:
-        cs = None
-    if cs is not None:
-        for kind, names in {
-            "hopf": ("hopf_seeds", "switch_hopf"),
-            "double_hopf": ("double_hopf_seeds", "switch_double_hopf"),
-            "cycle_branch_point": ("cycle_branch_point_seeds", "switch_cycle_branch_point"),
-            "period_doubling": ("period_doubling_seeds", "switch_period_doubling"),
-        }.items():
-            for nm in names:
-                fn = getattr(cs, nm, None)
-                if callable(fn):
-                    reg.register(kind, _wrap(fn))
-                    break
+        return reg
+
+    def one_way(start: Any, label: str) -> Seed:
+        # Away from the bifurcation only: the other sense shrinks the new
+        # branch back onto the old one.
+        seed = as_seed_from_start(start, label)
+        seed.both_directions = False
+        return seed
+
+    def params_of(problem: Any, p: float) -> np.ndarray | None:
+        f = getattr(problem, "params_at", None)
+        return None if f is None else np.asarray(f(p), dtype=float)
+
+    if hasattr(cs, "cycles_from_hopf"):
+        def hopf(sp: Any, branch: Any, problem: Any) -> list[Seed]:
+            st = cs.cycles_from_hopf(problem.model, problem.param, sp,
+                                     params=params_of(problem, sp.point.p))
+            return [one_way(st, "cycle")]
+
+        reg.register("hopf", _wrap(hopf))
+
+    if hasattr(cs, "rotating_wave_from_double_hopf"):
+        def double_hopf(sp: Any, branch: Any, problem: Any) -> list[Seed]:
+            model = problem.model
+            if not getattr(model.symmetries, "continuous", None):
+                # A generic double Hopf: two independent Hopf cycles.
+                st = cs.cycles_from_hopf(model, problem.param, sp,
+                                         params=params_of(problem, sp.point.p))
+                return [one_way(st, "cycle")]
+            out = []
+            errors = []
+            # The mirror-image rotating wave (which=1) is the same state up to
+            # a reflection: the identity test would drop it, so skip it.
+            try:
+                out.append(one_way(cs.rotating_wave_from_double_hopf(
+                    model, problem.param, sp, params=params_of(problem, sp.point.p)),
+                    "rotating wave"))
+            except (ContfilError, ValueError, ArithmeticError) as exc:
+                errors.append(f"rotating wave: {type(exc).__name__}: {exc}")
+            sub = standing_subspace
+            if sub == "auto":
+                subs = list(getattr(model.symmetries, "invariant_subspaces", {}) or {})
+                sub = subs[0] if len(subs) == 1 else None
+            try:
+                out.append(one_way(cs.standing_wave_from_double_hopf(
+                    model, problem.param, sp, params=params_of(problem, sp.point.p),
+                    subspace=sub), "standing wave"))
+            except (ContfilError, ValueError, ArithmeticError) as exc:
+                errors.append(f"standing wave: {type(exc).__name__}: {exc}")
+            if errors:
+                sp.data["switch_error"] = " | ".join(" ".join(e.split())[:300] for e in errors)
+            return out
+
+        reg.register("double_hopf", _wrap(double_hopf))
+
+    if hasattr(cs, "cycles_from_branch_point"):
+        def cycle_bp(sp: Any, branch: Any, problem: Any) -> list[Seed]:
+            return [one_way(cs.cycles_from_branch_point(problem, sp, side=s), f"{s:+d}")
+                    for s in (1, -1)]
+
+        reg.register("cycle_branch_point", _wrap(cycle_bp))
+
+    if hasattr(cs, "cycles_from_period_doubling"):
+        def pd(sp: Any, branch: Any, problem: Any) -> list[Seed]:
+            return [one_way(cs.cycles_from_period_doubling(problem, sp), "doubled")]
+
+        reg.register("period_doubling", _wrap(pd))
     return reg
 
 
+def as_seed_from_start(start: Any, label: str) -> Seed:
+    """A :class:`Seed` from the engine's ``BranchStart`` (problem, x0, p0, tangent)."""
+    return Seed(problem=start.problem, x0=np.asarray(start.x0, dtype=float),
+                p0=float(start.p0), direction=1,
+                tangent=np.asarray(start.tangent, dtype=float),
+                label=label, info={k: v for k, v in getattr(start, "info", {}).items()
+                                   if np.isscalar(v)})
+
+
 def _wrap(fn: Any) -> Any:
+    """A switch that fails (no convergence of the first point, degenerate
+    data) yields no seeds instead of stopping the study; the reason is kept
+    in ``switcher.failures`` and shown in the special point's node."""
+
     def switcher(sp: Any, branch: Any, problem: Any) -> list[Any]:
         try:
             out = fn(sp, branch, problem)
-        except ContfilError:
+        except (ContfilError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            # Recorded on the special point (exported with the graph).
+            sp.data["switch_error"] = f"{type(exc).__name__}: " + " ".join(str(exc).split())[:300]
             return []
         return list(out) if out is not None else []
 

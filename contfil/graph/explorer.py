@@ -343,9 +343,10 @@ class Explorer:
                         break
                 else:
                     reason = str(getattr(steps, "end_reason", "") or "stopped")
-        except ContfilError as exc:
-            # A failed step ends the segment, it does not lose the branch.
-            reason = f"error: {exc}"
+        except (ContfilError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+            # A failed step ends the segment, it does not lose the branch (or
+            # the study); the reason is kept with the branch.
+            reason = f"error: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
             self.progress.message(f"{name}: {reason}")
         if log is not None:
             log.end(reason)

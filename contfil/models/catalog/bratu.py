@@ -52,7 +52,9 @@ class BratuModel(FunctionModel):
         self.x = np.linspace(self.h, 1.0 - self.h, N)
         h2 = self.h**2
         self._L = sp.diags(
-            [np.ones(N - 1) / h2, -2.0 * np.ones(N) / h2, np.ones(N - 1) / h2], [-1, 0, 1], format="csr"
+            [np.ones(N - 1) / h2, -2.0 * np.ones(N) / h2, np.ones(N - 1) / h2],
+            [-1, 0, 1],
+            format="csr",
         )
         L = self._L
 
@@ -60,10 +62,20 @@ class BratuModel(FunctionModel):
             return L @ u + p[0] * np.exp(u)
 
         def obs(u: Array, p: Array) -> dict:
-            return {"max_u": float(np.max(u)), "u_mid": float(u[N // 2]), "norm": float(np.linalg.norm(u) * np.sqrt(self.h))}
+            return {
+                "max_u": float(np.max(u)),
+                "u_mid": float(u[N // 2]),
+                "norm": float(np.linalg.norm(u) * np.sqrt(self.h)),
+            }
 
-        super().__init__(f, N, {"lambda": lam0}, name=f"bratu_N{N}", observables=obs,
-                         jacobian=lambda u, p: self._L.toarray() + np.diag(p[0] * np.exp(u)))
+        super().__init__(
+            f,
+            N,
+            {"lambda": lam0},
+            name=f"bratu_N{N}",
+            observables=obs,
+            jacobian=lambda u, p: self._L.toarray() + np.diag(p[0] * np.exp(u)),
+        )
 
     def jacobian_sparse(self, u: Array, p: Array) -> sp.csr_matrix:
         """``L + diag(lambda e^u)`` as a sparse matrix."""
@@ -82,5 +94,10 @@ def bratu(N: int = 50) -> CatalogEntry:
     """
     lam, th = bratu_fold_exact()
     m = BratuModel(N)
-    return CatalogEntry(m, "lambda", np.zeros(N), 0.0,
-                        {"fold": lam, "theta_fold": th, "solution": bratu_solution, "h": m.h, "x": m.x})
+    return CatalogEntry(
+        m,
+        "lambda",
+        np.zeros(N),
+        0.0,
+        {"fold": lam, "theta_fold": th, "solution": bratu_solution, "h": m.h, "x": m.x},
+    )

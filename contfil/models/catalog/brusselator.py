@@ -34,10 +34,14 @@ def brusselator(A: float = 2.0, B0: float = 1.0) -> CatalogEntry:
         _, b = p
         return np.array([[-(b + 1) + 2 * x * y, x * x], [b - 2 * x * y, -x * x]])
 
-    m = FunctionModel(f, 2, {"A": A, "B": B0}, name="brusselator", jacobian=jac,
-                      u0=np.array([A, B0 / A]))
+    m = FunctionModel(
+        f, 2, {"A": A, "B": B0}, name="brusselator", jacobian=jac, u0=np.array([A, B0 / A])
+    )
     return CatalogEntry(
-        m, "B", np.array([A, B0 / A]), B0,
+        m,
+        "B",
+        np.array([A, B0 / A]),
+        B0,
         {
             "hopf": 1.0 + A * A,
             "omega": A,

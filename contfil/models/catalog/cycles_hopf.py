@@ -102,3 +102,68 @@ def exact_cycle(mu: float, omega: float = 1.0, a: float = -1.0, b: float = 0.0, 
     lam = 2 * a * r2 + 4 * c * r2 * r2
     return {"r2": r2, "r": float(np.sqrt(r2)), "period": T, "exponent": lam,
             "multiplier": float(np.exp(lam * T))}
+
+
+def stuart_landau_with_modes(
+    rates: np.ndarray,
+    pairs: np.ndarray | None = None,
+    mu: float = 1.0,
+    omega: float = 1.0,
+    kappa: float = 0.5,
+) -> FunctionModel:
+    """Supercritical Stuart–Landau cycle with attached transverse modes of known rates.
+
+    State ``(x, y, y_1 .. y_m, (a_1, b_1) .. (a_k, b_k))``; ``r² = x² + y²``::
+
+        ẏ_j = (σ_j + κ (r² - μ)) y_j,
+        (ȧ + i ḃ)_j = (α_j + i β_j + κ (r² - μ)) (a + i b)_j.
+
+    The coupling ``κ`` vanishes on the cycle ``r² = μ`` (period ``2π/ω``), so
+    the Floquet multipliers are exactly ``1, exp(-2μT), exp(σ_j T),
+    exp((α_j ± iβ_j) T)`` — a test of many leading multipliers at once.
+    ``rates`` are the ``σ_j``; ``pairs`` rows ``(α_j, β_j)``.
+    """
+    sig = np.asarray(rates, dtype=float)
+    pr = np.zeros((0, 2)) if pairs is None else np.asarray(pairs, dtype=float).reshape(-1, 2)
+    m, k = sig.size, pr.shape[0]
+    dim = 2 + m + 2 * k
+
+    def f(u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        out = np.empty(dim)
+        out[:2] = sl_rhs(u[:2], p[:5])
+        c = p[5] * (u[0] ** 2 + u[1] ** 2 - p[0])
+        out[2 : 2 + m] = (sig + c) * u[2 : 2 + m]
+        a, b = u[2 + m :: 2], u[3 + m :: 2]
+        out[2 + m :: 2] = (pr[:, 0] + c) * a - pr[:, 1] * b
+        out[3 + m :: 2] = pr[:, 1] * a + (pr[:, 0] + c) * b
+        return out
+
+    def jac(u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        J = np.zeros((dim, dim))
+        J[:2, :2] = sl_jacobian(u[:2], p[:5])
+        c = p[5] * (u[0] ** 2 + u[1] ** 2 - p[0])
+        dc = 2 * p[5] * u[:2]
+        idx = np.arange(2, 2 + m)
+        J[idx, idx] = sig + c
+        J[2:, :2] = np.outer(u[2:], dc)
+        ia, ib = np.arange(2 + m, dim, 2), np.arange(3 + m, dim, 2)
+        J[ia, ia] = pr[:, 0] + c
+        J[ia, ib] = -pr[:, 1]
+        J[ib, ia] = pr[:, 1]
+        J[ib, ib] = pr[:, 0] + c
+        return J
+
+    params = {"mu": mu, "omega": omega, "a": -1.0, "b": 0.0, "c": 0.0, "kappa": kappa}
+    return FunctionModel(f, dim, params, name="stuart_landau_with_modes", jacobian=jac)
+
+
+def exact_multipliers_with_modes(rates: np.ndarray, pairs: np.ndarray | None, mu: float,
+                                 omega: float = 1.0) -> np.ndarray:
+    """Exact multipliers of :func:`stuart_landau_with_modes`, leading first."""
+    T = 2 * np.pi / omega
+    vals = [1.0, np.exp(-2 * mu * T)] + list(np.exp(np.asarray(rates, dtype=float) * T))
+    if pairs is not None:
+        for a, b in np.asarray(pairs, dtype=float).reshape(-1, 2):
+            vals += [np.exp((a + 1j * b) * T), np.exp((a - 1j * b) * T)]
+    v = np.asarray(vals, dtype=complex)
+    return v[np.lexsort((-v.imag, -np.abs(v)))]

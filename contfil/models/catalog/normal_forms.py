@@ -98,10 +98,19 @@ def z2_pitchfork(p0: float = -1.0) -> CatalogEntry:
         x, y = u
         return np.array([[p[0] - 3 * x**2 + y, x], [-2 * x, -1.0]])
 
-    m = FunctionModel(f, 2, {"mu": p0}, name="z2_pitchfork", jacobian=jac,
-                      symmetries=Symmetries(reflections={"x->-x": np.diag([-1.0, 1.0])}))
+    m = FunctionModel(
+        f,
+        2,
+        {"mu": p0},
+        name="z2_pitchfork",
+        jacobian=jac,
+        symmetries=Symmetries(reflections={"x->-x": np.diag([-1.0, 1.0])}),
+    )
     return CatalogEntry(
-        m, "mu", np.zeros(2), p0,
+        m,
+        "mu",
+        np.zeros(2),
+        p0,
         {"bp": 0.0, "branch": lambda mu: np.array([np.sqrt(mu / 2.0), -mu / 2.0])},
     )
 
@@ -151,7 +160,9 @@ def o2_hopf(omega: float = 1.5, a: float = -1.0, b: float = -2.0, p0: float = -1
     gen[2, 3], gen[3, 2] = 1.0, -1.0
     sym = Symmetries(
         continuous=[ContinuousSymmetry("phase_shift", gen)],
-        reflections={"swap": np.block([[np.zeros((2, 2)), np.eye(2)], [np.eye(2), np.zeros((2, 2))]])},
+        reflections={
+            "swap": np.block([[np.zeros((2, 2)), np.eye(2)], [np.eye(2), np.zeros((2, 2))]])
+        },
     )
     m = FunctionModel(f, 4, {"mu": p0, "omega": omega}, name="o2_hopf", symmetries=sym)
     return CatalogEntry(m, "mu", np.zeros(4), p0, {"hopf": 0.0, "omega": omega, "multiplicity": 2})

@@ -213,9 +213,10 @@ class BDF2Stepper:
     strength:
         Alternatively the actuation strength itself (f or b1).
     jacobian:
-        ``"self"``: approximate Jacobian with self-mobilities only (the
-        paper's choice); ``"full"``: with the full RPY mobility frozen at the
-        predictor (same as ``"self"`` for local drag).
+        ``"full"`` (default): approximate Jacobian with the scene's full
+        mobility matrix and squirming interactions frozen at the predictor;
+        ``"self"``: with self-mobilities only (the paper's choice; 4-5x more
+        Broyden iterations with RPY, see docs/performance.md).
     reuse:
         False: a new ``J0`` is built and inverted every step (the paper's
         form). True: the Broyden-updated inverse is carried to the next step
@@ -230,7 +231,7 @@ class BDF2Stepper:
 
     def __init__(self, model_or_scene: Any, dt: float, tol: float = 1e-12,
                  max_iter: int = 60, max_refresh: int = 3, p: Array | None = None,
-                 strength: float | None = None, jacobian: str = "self",
+                 strength: float | None = None, jacobian: str = "full",
                  reuse: bool = True, reuse_limit: int = 8) -> None:
         self.scene = _scene_of(model_or_scene)
         if strength is None:
@@ -249,7 +250,7 @@ class BDF2Stepper:
         if jacobian not in ("self", "full"):
             raise ValueError(f"BDF2Stepper: jacobian must be 'self' or 'full', got {jacobian!r}")
         hydro = 1 if self.phys.hydro == "rpy" else 0
-        jmode = 1 if (jacobian == "full" and hydro == 1) else 0
+        jmode = 1 if jacobian == "full" else 0
         self._opts = np.array([hydro, jmode, int(bool(reuse)), self.max_iter,
                                self.max_refresh, int(reuse_limit)], dtype=np.int64)
         self._physarr = self.phys.phys_array()

@@ -19,7 +19,12 @@ and ``squirmer_matrix(X, a, eta)``. ``elastic``: ``elastic_moments(q, dL, KB,
 KT) -> (N-1, 3)`` and ``elastic_torques(q, dL, KB, KT) -> (N, 3)``. ``forces``:
 ``follower_forces(t, w, f) -> (N, 3)`` (``-f w_n t_n``) and ``segment_loads(t,
 Lam, Fc, Tc, TE, FA, dL) -> (F, T)``; velocities are then
-``[V; Omega] = M [F; T] + [Vsf; 0]``. Units: L = 1, K_B = 1, eta = 1.
+``[V; Omega] = M [F; T] + [Vsf; 0]``. ``constraints`` (used by the model's
+``rhs``): ``solve_constraints(t, Mob, F0, T0, Vsf, dL) -> (lam, vel)`` with
+``lam = [Lam (3(N-1)), Fc, Tc]``, ``vel = [V; Omega]`` (6N,), and
+``rhs3d(U, q, t, Mob, FA, Vsf, dL, KB, KT) -> (dU, lam, vel)``; planar
+analogues ``planar_configuration``, ``solve_constraints_planar``,
+``rhs_planar``. Units: L = 1, K_B = 1, eta = 1.
 """
 
 from .elastic import elastic_moments, elastic_torques

@@ -43,7 +43,7 @@ from .forces import follower_forces, segment_loads
 from .geometry import positions, tangents
 from .quaternion import dexp_inv, qexp, qmul
 from .rpy import rpy_mobility
-from .squirmer import squirmer_velocity
+from .squirmer import squirmer_matrix, squirmer_velocity
 
 # phys layout
 P_DL, P_A, P_ETA, P_KB, P_KT, P_F, P_B1 = 0, 1, 2, 3, 4, 5, 6
@@ -238,6 +238,7 @@ def approx_jacobian(
     phys: np.ndarray,
     wff: np.ndarray,
     wsf: np.ndarray,
+    hydro: int,
     jmode: int,
     zmap: np.ndarray,
     rmap: np.ndarray,
@@ -252,10 +253,12 @@ def approx_jacobian(
     force, the linearised elastic torque ``dM_{n+1/2} = K (du_{n+1} -
     du_n)/dL`` with ``K = R_n diag(KT, KB, KB) R_n^T``, and the self part of
     the squirming velocity. Dropped: the configuration dependence of the
-    mobility and of ``A = dexp_inv(u, .)`` (frozen at ``z``), and the
-    squirming interactions. ``jmode = 0``: self-mobilities only (the
-    paper's choice, O(N^2) to build); ``jmode = 1``: the full RPY matrix at
-    ``z`` (one dense ``6N x 6N`` product more, far fewer Broyden iterations).
+    mobility and of ``A = dexp_inv(u, .)`` (frozen at ``z``). ``jmode = 0``:
+    self-mobilities and self-squirming only (the paper's choice, O(N^2) to
+    build); ``jmode = 1``: the scene's mobility matrix at ``z`` (RPY: one
+    dense ``6N x 6N`` product more) and the full derivative of the squirming
+    velocity (through the tangents and the positions); far fewer Broyden
+    iterations.
     """
     N = qk.shape[0]
     g, dt = coef[3], coef[4]
@@ -339,8 +342,8 @@ def approx_jacobian(
     for k in range(3):
         G[k, 6 * (N - 1) + k] += sF
         G[RT + k, 6 * N - 3 + k] += sT
-    if jmode == 1:
-        X = positions(t, dL)
+    X = positions(t, dL)
+    if jmode == 1 and hydro == 1:
         MG = rpy_mobility(X, a, eta) @ G
     else:
         MG = G
@@ -348,12 +351,76 @@ def approx_jacobian(
             for k in range(6 * N):
                 MG[i, k] *= mt
                 MG[RT + i, k] *= mr
-    # self-squirming: V_n += -(2/3) B1 w_n t_n
-    for n in range(1, N):
-        if wsf[n] != 0.0:
-            for k in range(3):
-                tn[k] = t[n, k]
-            _skew_into(MG, 3 * n, 3 * (n - 1), tn, (2.0 / 3.0) * B1 * wsf[n])
+    if B1 != 0.0:
+        hfac = (4.0 / 3.0) * np.pi * eta * a * a * a * B1
+        if jmode == 1:
+            # dVsf_i/du_j = S_ij H'_j with dH_j = -hfac w_j [t_j]x du_j
+            Sq = squirmer_matrix(X, a, eta)
+            for j in range(1, N):
+                if wsf[j] == 0.0:
+                    continue
+                for k in range(3):
+                    tn[k] = t[j, k]
+                for i in range(N):
+                    # S_ij [t_j]x, then scale by -hfac w_j
+                    for r in range(3):
+                        s0 = Sq[3 * i + r, 3 * j]
+                        s1 = Sq[3 * i + r, 3 * j + 1]
+                        s2 = Sq[3 * i + r, 3 * j + 2]
+                        c = -hfac * wsf[j]
+                        MG[3 * i + r, 3 * (j - 1) + 0] += c * (s1 * tn[2] - s2 * tn[1])
+                        MG[3 * i + r, 3 * (j - 1) + 1] += c * (s2 * tn[0] - s0 * tn[2])
+                        MG[3 * i + r, 3 * (j - 1) + 2] += c * (s0 * tn[1] - s1 * tn[0])
+            # ... and on the positions: dVsf/dX (3N x 3N) times dX/du (robot arm)
+            D = np.zeros((3 * N, 3 * N))
+            c4 = 1.0 / (4.0 * np.pi * eta)
+            rv = np.empty(3)
+            Hj = np.empty(3)
+            for j in range(N):
+                if wsf[j] == 0.0:
+                    continue
+                for k in range(3):
+                    Hj[k] = hfac * wsf[j] * t[j, k]
+                for i in range(N):
+                    if i == j:
+                        continue
+                    r2 = 0.0
+                    rH = 0.0
+                    for k in range(3):
+                        rv[k] = X[i, k] - X[j, k]
+                        r2 += rv[k] * rv[k]
+                        rH += rv[k] * Hj[k]
+                    rr = np.sqrt(r2)
+                    r5 = r2 * r2 * rr
+                    r7 = r5 * r2
+                    # v = c4 (H/r^3 - 3 r (r.H)/r^5); dv_k/dr_l:
+                    for k in range(3):
+                        for l in range(3):
+                            gkl = -3.0 * (Hj[k] * rv[l] + rv[k] * Hj[l]) / r5
+                            gkl += 15.0 * rv[k] * rv[l] * rH / r7
+                            if k == l:
+                                gkl -= 3.0 * rH / r5
+                            gkl *= c4
+                            D[3 * i + k, 3 * i + l] += gkl
+                            D[3 * i + k, 3 * j + l] -= gkl
+            dXdu = np.zeros((3 * N, 3 * (N - 1)))
+            for n in range(N):
+                for m in range(1, n + 1):
+                    cc = 1.0 if m < n else 0.5
+                    for k in range(3):
+                        tn[k] = t[m, k]
+                    _skew_into(dXdu, 3 * n, 3 * (m - 1), tn, -cc * dL)
+            DX = D @ dXdu
+            for i in range(3 * N):
+                for k in range(3 * (N - 1)):
+                    MG[i, k] += DX[i, k]
+        else:
+            # self-squirming only: V_n += -(2/3) B1 w_n t_n
+            for n in range(1, N):
+                if wsf[n] != 0.0:
+                    for k in range(3):
+                        tn[k] = t[n, k]
+                    _skew_into(MG, 3 * n, 3 * (n - 1), tn, (2.0 / 3.0) * B1 * wsf[n])
     # J = Kin - g dt D MG, D = blockdiag(I/dL, A_n)
     J = np.empty((6 * N, 6 * N))
     c = gdt / dL
@@ -400,13 +467,14 @@ def _fresh_inverse(
     phys: np.ndarray,
     wff: np.ndarray,
     wsf: np.ndarray,
+    hydro: int,
     jmode: int,
     zmap: np.ndarray,
     rmap: np.ndarray,
     scale: np.ndarray,
 ) -> bool:
     """H = J0(z)^{-1}; False if J0 is singular or non-finite."""
-    J = approx_jacobian(z, qk, coef, phys, wff, wsf, jmode, zmap, rmap, scale)
+    J = approx_jacobian(z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap, scale)
     for i in range(J.shape[0]):
         for k in range(J.shape[1]):
             if not np.isfinite(J[i, k]):
@@ -463,7 +531,8 @@ def _solve_step(
         return NONFINITE, 0, res, 0
     builds = 0
     if not have_H and res > tol:
-        if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, jmode, zmap, rmap, scale):
+        if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap,
+                                  scale):
             return NONFINITE, 0, res, 1
         builds = 1
     it = 0
@@ -486,7 +555,8 @@ def _solve_step(
                 z[i] -= s[i]
             if builds > max_refresh:
                 return NONFINITE, it, resn, builds
-            if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, jmode, zmap, rmap, scale):
+            if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap,
+                                  scale):
                 return NONFINITE, it, resn, builds
             builds += 1
             since = 0
@@ -504,7 +574,8 @@ def _solve_step(
         if since >= 6:
             if builds > max_refresh:
                 return STALL, it, res, builds
-            if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, jmode, zmap, rmap, scale):
+            if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap,
+                                  scale):
                 return NONFINITE, it, res, builds
             builds += 1
             since = 0

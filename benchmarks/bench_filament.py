@@ -1,0 +1,219 @@
+"""Filament time-stepping benchmark: BDF2/Broyden step cost and a Radau comparison.
+
+Run (single-threaded BLAS, so the numbers do not depend on other jobs' use
+of the cores)::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_filament.py            # all
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_filament.py --no-radau  # table only
+
+Part 1 prints microseconds per BDF2 step (mean over steady stepping from a
+bent state at 0.6x the critical actuation) and per ``rhs`` call for the four
+paper models at N = 20, 3D and planar, with RPY or local drag, with and
+without actuation.
+
+Part 2 finds a whirling state of tip FF at f = 1.2 f_c (f_c from the
+eigenvalues of the upright state), measures its period from the tip's
+rotation rate, and integrates one period with scipy's Radau (Jacobian by
+central differences of ``rhs``, the model's ``jacobian``) and with the BDF2
+stepper at several accuracies; it prints the wall time of both at equal
+error of the final state and their ratio.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+from scipy.integrate import solve_ivp  # noqa: E402
+from scipy.optimize import brentq  # noqa: E402
+
+from contfil.models.filament import FilamentModel, Scene  # noqa: E402
+from contfil.models.filament.stepper import (  # noqa: E402
+    BDF2Stepper,
+    flow,
+    project_planar,
+    trajectory,
+)
+
+N = 20
+# actuation at 0.6x the critical value of each model (f_c from bench part 2's
+# eigenvalue search: tip FF 33.9, dis FF 3.76 per segment, tip SF 237, dis SF 65.9)
+MODELS = {
+    "tip_ff": ("follower_force", "tip", 20.0),
+    "dis_ff": ("follower_force", "distributed", 2.25),
+    "tip_sf": ("squirmer", "tip", 140.0),
+    "dis_sf": ("squirmer", "distributed", 40.0),
+}
+
+
+def bent_state(amp: float = 0.3) -> np.ndarray:
+    s = np.arange(2, N + 1) / N
+    U = np.zeros(3 * (N - 1))
+    U[1::3] = amp * s
+    U[0::3] = 0.4 * amp * s**2
+    U[2::3] = 0.05 * amp * s
+    return U
+
+
+def _time(fn, min_time: float = 0.3) -> float:
+    """Seconds per call of ``fn`` (best of 3 batches)."""
+    fn()
+    n = 1
+    while True:
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        el = time.perf_counter() - t0
+        if el > min_time / 3:
+            break
+        n *= 2
+    best = el / n
+    for _ in range(2):
+        t0 = time.perf_counter()
+        for _ in range(n):
+            fn()
+        best = min(best, (time.perf_counter() - t0) / n)
+    return best
+
+
+def step_cost(scene: Scene, u0: np.ndarray, dt: float, **kw) -> tuple[float, float]:
+    """(microseconds per step, mean Broyden iterations) over steady stepping."""
+    st = BDF2Stepper(scene, dt, **kw)
+    st.reset(u0)
+    st.step(20)
+    nsteps = 200
+    t0 = time.perf_counter()
+    st.step(nsteps)
+    el = time.perf_counter() - t0
+    return el / nsteps * 1e6, float(st.last_diagnostics.iterations.mean())
+
+
+def part1() -> None:
+    print("Part 1: cost per BDF2 step (dt = 1e-3, tol 1e-12) and per rhs call, N = 20")
+    hdr = (f"{'model':8s} {'dim':6s} {'hydro':6s} {'actuation':9s} {'us/step':>9s} "
+           f"{'iters':>6s} {'us/rhs':>8s}")
+    print(hdr)
+    print("-" * len(hdr))
+    U3 = bent_state()
+    for name, (act, prof, s) in MODELS.items():
+        for dim in ("3d", "planar"):
+            for hyd, on in (("rpy", True), ("local", True), ("rpy", False)):
+                sc = Scene(N=N, dimension=dim, hydrodynamics=hyd,
+                           actuation=act if on else None, profile=prof,
+                           strength=s if on else 0.0, name=name)
+                u0 = project_planar(U3) if dim == "planar" else U3
+                us, its = step_cost(sc, u0, 1e-3)
+                m = FilamentModel(sc)
+                p = m.default_params()
+                ur = _time(lambda m=m, u0=u0, p=p: m.rhs(u0, p)) * 1e6
+                print(f"{name:8s} {dim:6s} {hyd:6s} {('on' if on else 'off'):9s} "
+                      f"{us:9.0f} {its:6.2f} {ur:8.0f}")
+    sc = Scene(N=N, strength=20.0)
+    print("\nJ0 variants, tip_ff 3D RPY (dt = 1e-3):")
+    for jac, reuse in (("self", False), ("self", True), ("full", False), ("full", True)):
+        us, its = step_cost(sc, U3, 1e-3, jacobian=jac, reuse=reuse)
+        tag = " (paper: self-mobility J0, new every step)" if (jac, reuse) == ("self", False) \
+            else (" (default)" if (jac, reuse) == ("full", True) else "")
+        print(f"  jacobian={jac:4s} reuse={str(reuse):5s}: {us:7.0f} us/step, "
+              f"{its:5.2f} Broyden iterations/step{tag}")
+
+
+def critical_f(model: FilamentModel, lo: float, hi: float) -> tuple[float, float]:
+    def g(f: float) -> float:
+        return float(np.max(np.linalg.eigvals(model.jacobian(np.zeros(model.dim),
+                                                             np.array([f]))).real))
+
+    fc = brentq(g, lo, hi, xtol=1e-8)
+    lam = np.linalg.eigvals(model.jacobian(np.zeros(model.dim), np.array([fc])))
+    return fc, float(np.abs(lam[np.argmax(lam.real)].imag))
+
+
+def _interp_time(errs: np.ndarray, times: np.ndarray, target: float) -> float:
+    """Wall time at error ``target`` by log-log interpolation (nan outside range)."""
+    o = np.argsort(errs)
+    le, lt = np.log(errs[o]), np.log(times[o])
+    if not (le[0] <= np.log(target) <= le[-1]):
+        return float("nan")
+    return float(np.exp(np.interp(np.log(target), le, lt)))
+
+
+def part2() -> None:
+    print("\nPart 2: one period of whirling (tip FF), Radau vs BDF2 at equal accuracy")
+    m = FilamentModel(Scene(N=N, strength=0.0, name="tip_ff"))
+    fc, om_c = critical_f(m, 25.0, 45.0)
+    f = 1.2 * fc
+    p = np.array([f])
+    print(f"critical f_c = {fc:.4f} (Hopf frequency {om_c:.3f}); running at f = {f:.4f}")
+    # settle onto whirling from a small out-of-plane perturbation
+    dt = (2 * np.pi / om_c) / 400
+    u = 0.05 * bent_state(1.0)
+    t0 = time.perf_counter()
+    T_settle = 12.0
+    tr = trajectory(m, u, p, T_settle, dt=dt, out_every=10)
+    el = time.perf_counter() - t0
+    ang = np.unwrap(tr.observables["tip_angle"])
+    r = np.hypot(tr.observables["tip"][:, 0], tr.observables["tip"][:, 1])
+    last = tr.t > T_settle - 2.0
+    omega = np.polyfit(tr.t[last], ang[last], 1)[0]
+    Tp = 2 * np.pi / abs(omega)
+    print(f"transient: {tr.diagnostics.iterations.size} steps in {el:.1f} s; last 2 time "
+          f"units: tip radius {r[last].mean():.4f} +- {r[last].std():.1e}, omega = "
+          f"{omega:.4f}, period T = {Tp:.5f}")
+    uw = tr.states[-1]
+    # reference end state: Richardson extrapolation of two fine BDF2 runs
+    n_ref = 12800
+    a = flow(m, uw, p, Tp, steps=n_ref)
+    b = flow(m, uw, p, Tp, steps=2 * n_ref)
+    ref = (4 * b - a) / 3
+    print(f"reference: BDF2 {n_ref}/{2 * n_ref} steps, Richardson; |difference| "
+          f"{np.max(np.abs(a - b)):.1e}; rotating wave check |U(T) - U(0)| = "
+          f"{np.max(np.abs(ref - uw)):.1e}")
+    rows = []
+    for n in (100, 200, 400, 800, 1600, 3200):
+        t0 = time.perf_counter()
+        U = flow(m, uw, p, Tp, steps=n)
+        el = time.perf_counter() - t0
+        rows.append(("BDF2", f"steps={n}", el, np.max(np.abs(U - ref)), n))
+    for rtol in (1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9):
+        t0 = time.perf_counter()
+        sol = solve_ivp(lambda t, y: m.rhs(y, p), (0.0, Tp), uw, method="Radau", rtol=rtol,
+                        atol=rtol * 1e-2, jac=lambda t, y: m.jacobian(y, p))
+        el = time.perf_counter() - t0
+        rows.append(("Radau", f"rtol={rtol:.0e}", el, np.max(np.abs(sol.y[:, -1] - ref)),
+                     f"{sol.nfev} rhs, {sol.njev} jac, {sol.t.size - 1} steps"))
+    print(f"{'method':6s} {'setting':12s} {'wall s':>8s} {'max err':>9s}  notes")
+    for meth, setting, el, err, note in rows:
+        print(f"{meth:6s} {setting:12s} {el:8.3f} {err:9.2e}  {note}")
+    eb = np.array([r_[3] for r_ in rows if r_[0] == "BDF2"])
+    tb = np.array([r_[2] for r_ in rows if r_[0] == "BDF2"])
+    er = np.array([r_[3] for r_ in rows if r_[0] == "Radau"])
+    trd = np.array([r_[2] for r_ in rows if r_[0] == "Radau"])
+    print("equal-accuracy wall times (log-log interpolation):")
+    for target in (1e-3, 1e-4, 1e-5, 1e-6):
+        x, y = _interp_time(er, trd, target), _interp_time(eb, tb, target)
+        print(f"  error {target:.0e}: Radau {x:8.3f} s, BDF2 {y:8.3f} s, ratio Radau/BDF2 "
+              f"= {x / y:6.1f}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--no-radau", action="store_true", help="skip part 2")
+    ap.add_argument("--only-radau", action="store_true", help="skip part 1")
+    args = ap.parse_args()
+    # compile once before timing
+    st = BDF2Stepper(Scene(N=N, strength=1.0), 1e-3)
+    st.reset(bent_state())
+    st.step(3)
+    if not args.only_radau:
+        part1()
+    if not args.no_radau:
+        part2()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,416 @@
+"""Branch switching onto periodic orbits and rotating waves.
+
+Every switch follows one recipe. Near the bifurcation point ``(x*, p*)`` the
+new branch leaves along a known direction ``d`` in ``x`` (a critical
+eigenvector) while ``p - p* = O(ε²)`` (Hopf, pitchfork of cycles, period
+doubling). So the first point is solved with the *amplitude* fixed instead
+of the parameter::
+
+    G(x, p) = 0,   <d̂, x - x*> = ε,
+
+unknowns ``(x, p)`` (Newton–Krylov with hookstep, :mod:`contfil.engine.hookstep`).
+Which side of ``p*`` the branch lies on (super- or subcritical) falls out of
+this solve. The secant ``X1 - X*`` then orients the continuation away from
+the bifurcation. Folds need no switching: pseudo-arclength passes them.
+
+- Hopf -> cycles: ``u ≈ u* + ε Re(v e^{iωt})``, ``T ≈ 2π/ω``
+  (:func:`cycles_from_hopf`).
+- O(2) double Hopf: the critical eigenspace splits into eigenvectors of the
+  rotation generator ``L`` (``L r = i m r``): ``Re(r e^{iωt})`` rotates
+  rigidly — a rotating wave, solved in the co-moving frame with
+  ``ω_RW ≈ ω/m`` (:func:`rotating_wave_from_double_hopf`); ``r_+ + r_-``
+  mixes give standing waves, solved as relative periodic orbits (θ -> 0) or
+  in an invariant subspace (:func:`standing_wave_from_double_hopf`). With a
+  standing eigenvector ``v_x`` and ``v_y = R(π/2) v_x`` these are
+  ``v_x ∓ i v_y`` and ``v_x`` themselves.
+- Pitchfork of cycles: ``x* ± ε`` times the second tangent (null space of
+  ``[G_x G_p]``) or the critical Floquet eigenvector
+  (:func:`cycles_from_branch_point`); the two signs are conjugate by the
+  broken symmetry.
+- Period doubling: ``u* + ε v`` (eigenvector of ``μ = -1``), period ``2T``
+  (:func:`cycles_from_period_doubling`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from contfil.engine.branch import (
+    CYCLE_BRANCH_POINT,
+    DOUBLE_HOPF,
+    HOPF,
+    PERIOD_DOUBLING,
+    Branch,
+    SpecialPoint,
+)
+from contfil.engine.continuation import Continuation, ContinuationSettings
+from contfil.engine.events import normalise_phase
+from contfil.engine.hookstep import newton_hookstep
+from contfil.engine.problem_base import Problem
+from contfil.engine.rotating_wave import RotatingWaveProblem
+from contfil.engine.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
+from contfil.engine.switching import hopf_data, o2_hopf_modes
+from contfil.errors import ContfilError, ConvergenceError
+from contfil.models.protocol import Model
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "BranchStart",
+    "solve_with_amplitude",
+    "cycles_from_hopf",
+    "rotating_wave_from_double_hopf",
+    "standing_wave_from_double_hopf",
+    "cycles_from_branch_point",
+    "cycles_from_period_doubling",
+    "x_from_point",
+]
+
+
+@dataclass
+class BranchStart:
+    """A corrected first point of a new branch, ready to continue.
+
+    ``problem`` is the problem of the new branch, ``(x0, p0)`` its first
+    solution, ``tangent`` (length ``n + 1``) points away from the
+    bifurcation, ``info`` records the switch (bifurcation point, ε, side,
+    solver statistics).
+    """
+
+    problem: Problem
+    x0: Array
+    p0: float
+    tangent: Array
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def continuation(
+        self,
+        settings: ContinuationSettings | None = None,
+        events: Sequence[Any] | None = None,
+        corrector: Any = None,
+    ) -> Continuation:
+        """A :class:`Continuation` from this start (iterate it or call ``run()``)."""
+        return Continuation(self.problem, self.x0, self.p0, settings, tangent=self.tangent,
+                            events=events, corrector=corrector)
+
+    def run(self, settings: ContinuationSettings | None = None, **kw: Any) -> Branch:
+        """Continue to the end; ``branch.meta["switch"]`` holds ``info``."""
+        br = self.continuation(settings, **kw).run()
+        br.meta["switch"] = {k: v for k, v in self.info.items() if np.isscalar(v) or v is None}
+        return br
+
+
+def solve_with_amplitude(
+    problem: Problem,
+    x_guess: Array,
+    p_guess: float,
+    x_star: Array,
+    direction: Array,
+    eps: float,
+    tol: float = 1e-10,
+    max_iter: int = 40,
+) -> tuple[Array, float, dict[str, Any]]:
+    """Solve ``G(x, p) = 0`` with ``<d̂, x - x*> = ε`` for ``(x, p)``.
+
+    ``direction`` is normalised here. Uses :func:`newton_hookstep` with the
+    problem's ``jvp`` and ``dp``; raises :class:`ConvergenceError` naming the
+    residual when it fails.
+    """
+    d = np.asarray(direction, dtype=float)
+    nd = float(np.linalg.norm(d))
+    if nd == 0.0:
+        raise ContfilError("solve_with_amplitude: zero direction")
+    d = d / nd
+    n = problem.n
+
+    def F(X: Array) -> Array:
+        x, p = X[:n], float(X[n])
+        return np.concatenate([problem.residual(x, p), [d @ (x - x_star) - eps]])
+
+    def jvp(X: Array, V: Array) -> Array:
+        x, p = X[:n], float(X[n])
+        top = problem.jvp(x, p, V[:n])
+        if V[n] != 0.0:
+            top = top + V[n] * problem.dp(x, p)
+        return np.concatenate([top, [d @ V[:n]]])
+
+    X0 = np.concatenate([x_guess, [p_guess]])
+    X, info = newton_hookstep(F, X0, jvp=jvp, tol=tol, max_iter=max_iter,
+                              name=f"first point of the new {problem.kind} branch")
+    return X[:n], float(X[n]), info
+
+
+def _start(problem: Problem, X1: tuple[Array, float], X_star: Array, info: dict[str, Any]) -> BranchStart:
+    x1, p1 = X1
+    t = np.concatenate([x1, [p1]]) - X_star
+    t = t / np.linalg.norm(t)
+    problem.accept(x1, p1)
+    return BranchStart(problem, x1, p1, t, info)
+
+
+def _unit_real(v: NDArray) -> Array:
+    v = np.asarray(v, dtype=float)
+    return v / np.linalg.norm(v)
+
+
+def cycles_from_hopf(
+    model: Model,
+    param: str,
+    hopf: SpecialPoint,
+    *,
+    params: Array | None = None,
+    eps: float | None = None,
+    steps: int = 100,
+    **problem_kw: Any,
+) -> BranchStart:
+    """First periodic orbit near a Hopf point, with its :class:`PeriodicOrbitProblem`.
+
+    The guess is ``u* + ε Re(v)/|Re v|`` (the orbit ``u* + ε' Re(v e^{iωt})``
+    at phase 0), ``T = 2π/ω``; the amplitude ``<Re v̂, u - u*> = ε`` is fixed
+    and ``p`` solved for, so the side of the branch (super/subcritical)
+    comes from this solve: ``info["side"] = sign(p1 - p*)``.
+    ``eps`` defaults to ``0.05 (1 + |u*|)``.
+    """
+    if hopf.kind not in (HOPF, DOUBLE_HOPF):
+        raise ContfilError(f"cycles_from_hopf needs a Hopf point, got {hopf.kind!r}")
+    hd = hopf_data(hopf)
+    u_s, p_s, om = hd["u"], hd["p"], hd["omega"]
+    v = normalise_phase(np.asarray(hd["v_re"]) + 1j * np.asarray(hd["v_im"]))
+    d = _unit_real(v.real)
+    e = float(eps) if eps is not None else 0.05 * (1.0 + float(np.linalg.norm(u_s)))
+    base = np.asarray(params if params is not None else hd["params"], dtype=float)
+    pb = PeriodicOrbitProblem(model, param, base, steps=steps, **problem_kw)
+    u0 = u_s + e * d
+    T0 = 2 * np.pi / abs(om)
+    pb.set_reference(u0, p_s)
+    x_star = np.concatenate([u_s, [T0]])
+    dx = np.concatenate([d, [0.0]])
+    x1, p1, info = solve_with_amplitude(pb, np.concatenate([u0, [T0]]), p_s, x_star, dx, e)
+    return _start(pb, (x1, p1), np.concatenate([x_star, [p_s]]), {
+        "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e,
+        "side": float(np.sign(p1 - p_s)), "newton_iterations": info["iterations"],
+        "residual_evals": info["residual_evals"]})
+
+
+def _o2_modes(model: Model, hopf: SpecialPoint, symmetry_index: int) -> tuple[dict, Array]:
+    sym = model.symmetries.continuous
+    if not sym:
+        raise ContfilError(f"model {model.name!r} has no continuous symmetry: no O(2) double Hopf")
+    hd = hopf_data(hopf)
+    L = np.asarray(sym[symmetry_index].generator, dtype=float)
+    if hd["multiplicity"] < 2 or "v2_re" not in hd:
+        # one eigenvector given: complete the eigenspace with its rotation by π/2
+        v = np.asarray(hd["v_re"]) + 1j * np.asarray(hd["v_im"])
+        v2 = sym[symmetry_index].act(np.pi / 2, v.real) + 1j * sym[symmetry_index].act(np.pi / 2, v.imag)
+        hd = dict(hd, v2_re=v2.real, v2_im=v2.imag, multiplicity=2)
+    modes = o2_hopf_modes(hd, L)
+    if abs(np.linalg.det(np.column_stack(modes["rotating"]).conj().T @ np.column_stack(modes["rotating"]))) < 1e-10:
+        raise ContfilError("double Hopf: the critical eigenspace is degenerate (one mode only)")
+    return dict(hd, modes=modes), L
+
+
+def rotating_wave_from_double_hopf(
+    model: Model,
+    param: str,
+    hopf: SpecialPoint,
+    *,
+    params: Array | None = None,
+    eps: float | None = None,
+    symmetry_index: int = 0,
+    which: int = 0,
+    **problem_kw: Any,
+) -> BranchStart:
+    """First rotating wave from an O(2) double Hopf point.
+
+    The mode ``r`` with ``L r = i m r`` gives ``Re(r e^{iωt}) =
+    exp((ω/m) t L) Re(r)``: a wave rotating at ``ω_RW = ω/m``. The
+    co-moving problem :class:`RotatingWaveProblem` is seeded with
+    ``u* + ε Re(r̂)`` and ``ω_RW`` and solved with fixed amplitude.
+    ``which`` (0/1) picks one of the two mirror-image waves.
+    """
+    hd, L = _o2_modes(model, hopf, symmetry_index)
+    modes = hd["modes"]
+    r = normalise_phase(modes["rotating"][which])
+    m = float(np.imag(modes["m"][which]))
+    if abs(m) < 1e-8:
+        raise ContfilError("double Hopf: the rotation acts trivially on the chosen mode")
+    u_s, p_s, om = hd["u"], hd["p"], hd["omega"]
+    d = _unit_real(r.real)
+    e = float(eps) if eps is not None else 0.05 * (1.0 + float(np.linalg.norm(u_s)))
+    base = np.asarray(params if params is not None else hd["params"], dtype=float)
+    pb = RotatingWaveProblem(model, param, base, symmetry_index=symmetry_index, **problem_kw)
+    u0 = u_s + e * d
+    om_rw = om / m
+    pb.set_reference(u0)
+    x_star = np.concatenate([u_s, [om_rw]])
+    x1, p1, info = solve_with_amplitude(pb, np.concatenate([u0, [om_rw]]), p_s, x_star,
+                                        np.concatenate([d, [0.0]]), e)
+    return _start(pb, (x1, p1), np.concatenate([x_star, [p_s]]), {
+        "from": hopf.kind, "p_star": p_s, "omega": om, "omega_rw_guess": om_rw, "m": m,
+        "eps": e, "side": float(np.sign(p1 - p_s)), "newton_iterations": info["iterations"]})
+
+
+def _subspace_projector(model: Model, name: str) -> Array:
+    sub = model.symmetries.invariant_subspaces[name]
+    n = model.dim
+    k = sub.reduced_model().dim
+    E = np.column_stack([np.asarray(sub.embed(e), dtype=float) for e in np.eye(k)])
+    Pr = np.column_stack([np.asarray(sub.project(e), dtype=float) for e in np.eye(n)])
+    return E @ Pr
+
+
+def standing_wave_from_double_hopf(
+    model: Model,
+    param: str,
+    hopf: SpecialPoint,
+    *,
+    params: Array | None = None,
+    eps: float | None = None,
+    symmetry_index: int = 0,
+    subspace: str | None = None,
+    steps: int = 100,
+    **problem_kw: Any,
+) -> BranchStart:
+    """First standing wave from an O(2) double Hopf point.
+
+    Seed ``u* + ε Re(s)`` with ``s`` a standing mode (equal mix of the two
+    rotating modes), ``T = 2π/ω``. Solved as a
+    :class:`RelativePeriodicOrbitProblem` (the drift θ converges to 0), or,
+    with ``subspace``, as a :class:`PeriodicOrbitProblem` in that invariant
+    subspace's reduced model (the standing mode is then chosen inside the
+    subspace); stability is always computed in the full model.
+    """
+    hd, L = _o2_modes(model, hopf, symmetry_index)
+    modes = hd["modes"]
+    u_s, p_s, om = hd["u"], hd["p"], hd["omega"]
+    if subspace is not None:
+        P = _subspace_projector(model, subspace)
+        B = np.column_stack(modes["rotating"])
+        # the unit combination of the eigenspace closest to the subspace
+        _, sv, Wh = np.linalg.svd((np.eye(P.shape[0]) - P) @ B)
+        s = B @ Wh.conj()[-1]
+        if sv[-1] > 1e-6 * max(1.0, sv[0]):
+            raise ContfilError(f"no standing mode lies in the invariant subspace {subspace!r}")
+    else:
+        s = modes["standing"][0]
+    s = normalise_phase(s / np.linalg.norm(s))
+    d = _unit_real(s.real)
+    e = float(eps) if eps is not None else 0.05 * (1.0 + float(np.linalg.norm(u_s)))
+    base = np.asarray(params if params is not None else hd["params"], dtype=float)
+    T0 = 2 * np.pi / abs(om)
+    u0 = u_s + e * d
+    if subspace is not None:
+        sub = model.symmetries.invariant_subspaces[subspace]
+        pb: PeriodicOrbitProblem = PeriodicOrbitProblem(model, param, base, steps=steps,
+                                                        subspace=subspace, **problem_kw)
+        proj = lambda w: np.asarray(sub.project(w), dtype=float)  # noqa: E731
+        ur0, ur_s = proj(u0), proj(u_s)
+        dr = proj(u_s + d) - ur_s
+        pb.set_reference(ur0, p_s)
+        x_star = np.concatenate([ur_s, [T0]])
+        xg = np.concatenate([ur0, [T0]])
+        e_r = float(_unit_real(dr) @ (ur0 - ur_s))
+        x1, p1, info = solve_with_amplitude(pb, xg, p_s, x_star, np.concatenate([dr, [0.0]]), e_r)
+    else:
+        pb = RelativePeriodicOrbitProblem(model, param, base, steps=steps,
+                                          symmetry_index=symmetry_index, **problem_kw)
+        pb.set_reference(u0, p_s)
+        x_star = np.concatenate([u_s, [T0, 0.0]])
+        x1, p1, info = solve_with_amplitude(pb, np.concatenate([u0, [T0, 0.0]]), p_s, x_star,
+                                            np.concatenate([d, [0.0, 0.0]]), e)
+    return _start(pb, (x1, p1), np.concatenate([x_star, [p_s]]), {
+        "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "subspace": subspace,
+        "side": float(np.sign(p1 - p_s)), "newton_iterations": info["iterations"]})
+
+
+def x_from_point(problem: Problem, sp: SpecialPoint) -> Array:
+    """Rebuild the unknowns ``x`` of ``problem`` from a special point's data."""
+    pt = sp.point
+    if "x" in sp.data:
+        return np.asarray(sp.data["x"], dtype=float)
+    u = np.asarray(pt.u, dtype=float)
+    if isinstance(problem, PeriodicOrbitProblem):
+        if problem.subspace is not None:
+            u = np.asarray(problem.subspace.project(u), dtype=float)
+        tail = [pt.extra["period"]]
+        if isinstance(problem, RelativePeriodicOrbitProblem):
+            tail.append(pt.extra.get("drift", 0.0))
+        return np.concatenate([u, tail])
+    if isinstance(problem, RotatingWaveProblem):
+        return np.concatenate([u, [pt.extra["omega"]]])
+    return u
+
+
+def cycles_from_branch_point(
+    problem: PeriodicOrbitProblem,
+    sp: SpecialPoint,
+    *,
+    eps: float = 0.05,
+    side: int = +1,
+) -> BranchStart:
+    """First cycle of the bifurcating branch at a pitchfork (branch point) of cycles.
+
+    Direction: the second tangent ``data["tangent2"]`` when the branch point
+    was found on a dense problem, else the critical Floquet eigenvector
+    ``data["v_re"]`` (state part; ``T`` unchanged). ``side = ±1`` picks one
+    of the two conjugate halves.
+    """
+    if sp.kind != CYCLE_BRANCH_POINT:
+        raise ContfilError(f"cycles_from_branch_point needs {CYCLE_BRANCH_POINT!r}, got {sp.kind!r}")
+    x_bp = x_from_point(problem, sp)
+    p_bp = float(sp.point.p)
+    n = problem.n
+    t2 = sp.data.get("tangent2")
+    if t2 is not None:
+        dx = np.asarray(t2[:n], dtype=float)
+    elif sp.data.get("v_re") is not None:
+        v = np.asarray(sp.data["v_re"], dtype=float)
+        if problem.subspace is not None:
+            raise ContfilError("symmetry breaking out of an invariant subspace: solve in the full model")
+        dx = np.concatenate([v, np.zeros(n - v.size)])
+    else:
+        raise ContfilError("cycle branch point without tangent2 or eigenvector data")
+    dx = side * dx / np.linalg.norm(dx)
+    problem.set_reference(x_bp[: problem.dim], p_bp)
+    x1, p1, info = solve_with_amplitude(problem, x_bp + eps * dx, p_bp, x_bp, dx, eps)
+    return _start(problem, (x1, p1), np.concatenate([x_bp, [p_bp]]), {
+        "from": sp.kind, "p_star": p_bp, "eps": eps, "side": float(np.sign(p1 - p_bp)),
+        "newton_iterations": info["iterations"]})
+
+
+def cycles_from_period_doubling(
+    problem: PeriodicOrbitProblem,
+    sp: SpecialPoint,
+    *,
+    eps: float = 0.05,
+    side: int = +1,
+) -> BranchStart:
+    """First cycle of the period-doubled branch (a new problem with twice the steps)."""
+    if sp.kind != PERIOD_DOUBLING:
+        raise ContfilError(f"cycles_from_period_doubling needs {PERIOD_DOUBLING!r}, got {sp.kind!r}")
+    if sp.data.get("v_re") is None:
+        raise ContfilError("period-doubling point without its critical eigenvector")
+    if type(problem) is not PeriodicOrbitProblem or problem.subspace is not None:
+        raise ContfilError("cycles_from_period_doubling supports full-space PeriodicOrbitProblem")
+    x_pd = x_from_point(problem, sp)
+    p_pd = float(sp.point.p)
+    T = float(x_pd[-1])
+    v = _unit_real(sp.data["v_re"]) * side
+    new = PeriodicOrbitProblem(problem.model, problem.param, problem.base_params,
+                               steps=2 * problem.steps, nev=problem.nev,
+                               floquet_tol=problem.floquet_tol)
+    x_star = np.concatenate([x_pd[:-1], [2 * T]])
+    dx = np.concatenate([v, [0.0]])
+    new.set_reference(x_pd[:-1] + eps * v, p_pd)
+    try:
+        x1, p1, info = solve_with_amplitude(new, x_star + eps * dx, p_pd, x_star, dx, eps)
+    except ConvergenceError as exc:
+        raise ConvergenceError(f"period-doubled branch: {exc}") from exc
+    return _start(new, (x1, p1), np.concatenate([x_star, [p_pd]]), {
+        "from": sp.kind, "p_star": p_pd, "eps": eps, "side": float(np.sign(p1 - p_pd)),
+        "newton_iterations": info["iterations"]})

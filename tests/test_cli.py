@@ -1,0 +1,124 @@
+"""The command line: the README's main command, exports, plots, clear errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import networkx as nx
+import numpy as np
+import pytest
+from matplotlib.image import imread
+
+from contfil.cli import main
+from contfil.graph.branch_graph import BranchGraph
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT = ROOT / "branches" / "default.toml"
+
+
+@pytest.fixture(scope="module")
+def default_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("cli") / "run"
+    assert main(["run", str(DEFAULT), "--out", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_readme_main_command_runs_default_study(default_run: Path) -> None:
+    readme = (ROOT / "README.md").read_text()
+    assert "pip install -e . && contfil run branches/default.toml" in readme
+    assert "pip install -e '.[test]' && python -m pytest" in readme
+    g = BranchGraph.load_json(default_run / "graph.json")
+    assert len(g) >= 2 and len(g.special_points) >= 1
+    kinds = {g.g.nodes[s]["kind"] for s in g.special_points}
+    assert kinds & {"branch_point", "hopf", "double_hopf"}
+    # Every branch is connected to the root through special points.
+    assert nx.is_weakly_connected(g.g)
+    for f in ("diagram.png", "eigenvalues.png"):
+        img = imread(default_run / "plots" / f)
+        assert img.shape[0] > 200 and img.shape[1] > 200
+        assert img[..., :3].std() > 0.05  # not a blank canvas
+    m = json.loads((default_run / "run.json").read_text())
+    assert m["status"] == "complete" and m["format"] == "contfil-run/1"
+    assert (default_run / "spec.toml").read_text() == DEFAULT.read_text()
+
+
+def test_export_and_show(default_run: Path, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "g.graphml"
+    assert main(["export", str(default_run), "--format", "graphml", "-o", str(out)]) == 0
+    G = nx.read_graphml(out)
+    assert set(G.nodes) == set(BranchGraph.load_json(default_run / "graph.json").g.nodes)
+    out_j = tmp_path / "g.json"
+    assert main(["export", str(default_run), "--format", "json", "-o", str(out_j)]) == 0
+    assert json.loads(out_j.read_text())["directed"] is True
+    assert main(["show", str(default_run)]) == 0
+    assert "BP1" in capsys.readouterr().out
+
+
+def test_plot_command(default_run: Path, tmp_path: Path) -> None:
+    assert main(["plot", str(default_run), "--out", str(tmp_path / "p"),
+                 "--observable", "u0"]) == 0
+    assert (tmp_path / "p" / "diagram.png").stat().st_size > 5000
+
+
+def test_run_refuses_existing_directory_and_resumes_complete_run(
+        default_run: Path, tmp_path: Path, capsys) -> None:
+    copy = tmp_path / "copy"
+    shutil.copytree(default_run, copy)
+    assert main(["run", str(DEFAULT), "--out", str(copy), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "exists and is not empty" in err
+    # Resuming a finished run recomputes nothing and gives the same graph.
+    assert main(["run", str(DEFAULT), "--out", str(copy), "--resume", "--quiet"]) == 0
+    a = BranchGraph.load_json(default_run / "graph.json")
+    b = BranchGraph.load_json(copy / "graph.json")
+    assert list(a.branches) == list(b.branches)
+    for bid in a.branches:
+        pa, pb = a.branch(bid).points, b.branch(bid).points
+        assert len(pa) == len(pb)
+        assert all(np.array_equal(x.u, y.u) and x.p == y.p for x, y in zip(pa, pb, strict=True))
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("[model]\nname = 'z2_pitchfork'\n[continuation]\nrange = [0, 1]\nds = 'x'\n",
+         "continuation.ds: expected a number"),
+        ("[model]\nname = 'nope'\n[continuation]\nrange = [0, 1]\n",
+         "model.name: unknown catalog model 'nope'"),
+        ("[model]\nname = 'z2_pitchfork'\n[continuation]\nrange = [0, 1]\nparameter = 'k'\n",
+         "continuation.parameter: model 'z2_pitchfork' has no parameter 'k'"),
+        ("not toml [", "invalid TOML"),
+    ],
+)
+def test_bad_spec_exit_code_2_one_line(tmp_path: Path, capsys, text: str, needle: str) -> None:
+    spec = tmp_path / "bad.toml"
+    spec.write_text(text)
+    assert main(["run", str(spec), "--out", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("contfil: error: ") and err.count("\n") == 1 and needle in err
+
+
+def test_console_script_and_module_entry_points(tmp_path: Path) -> None:
+    # `python -m contfil` is the same program (the console script calls main()).
+    r = subprocess.run([sys.executable, "-m", "contfil", "export", str(tmp_path)],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "no graph at" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "contfil", "--help"], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0 and "simulate" in r.stdout
+
+
+def test_simulate_catalog_model(tmp_path: Path, capsys) -> None:
+    spec = tmp_path / "s.toml"
+    spec.write_text("[model]\nname = 'z2_pitchfork'\nparams = { mu = 0.5 }\n"
+                    "[simulate]\nt_end = 20.0\nframes = 50\nperturbation = 0.1\n")
+    assert main(["simulate", str(spec), "--out", str(tmp_path / "sim")]) == 0
+    summary = json.loads((tmp_path / "sim" / "summary.json").read_text())
+    # Attracted to the stable pitchfork branch |x| = sqrt(mu/2), y = -mu/2.
+    x, y = summary["final_state"]
+    assert abs(abs(x) - 0.5) < 1e-3 and abs(y + 0.25) < 1e-3
+    assert (tmp_path / "sim" / "timeseries.png").exists()
