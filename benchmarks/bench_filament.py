@@ -95,38 +95,54 @@ def step_cost(scene: Scene, u0: np.ndarray, dt: float, **kw) -> tuple[float, flo
 
 def part1() -> None:
     print("Part 1: cost per BDF2 step (dt = 1e-3, tol 1e-12) and per rhs call, N = 20")
-    hdr = (f"{'model':8s} {'dim':6s} {'hydro':6s} {'actuation':9s} {'us/step':>9s} "
-           f"{'iters':>6s} {'us/rhs':>8s}")
+    hdr = (
+        f"{'model':8s} {'dim':6s} {'hydro':6s} {'actuation':9s} {'us/step':>9s} "
+        f"{'iters':>6s} {'us/rhs':>8s}"
+    )
     print(hdr)
     print("-" * len(hdr))
     U3 = bent_state()
     for name, (act, prof, s) in MODELS.items():
         for dim in ("3d", "planar"):
             for hyd, on in (("rpy", True), ("local", True), ("rpy", False)):
-                sc = Scene(N=N, dimension=dim, hydrodynamics=hyd,
-                           actuation=act if on else None, profile=prof,
-                           strength=s if on else 0.0, name=name)
+                sc = Scene(
+                    N=N,
+                    dimension=dim,
+                    hydrodynamics=hyd,
+                    actuation=act if on else None,
+                    profile=prof,
+                    strength=s if on else 0.0,
+                    name=name,
+                )
                 u0 = project_planar(U3) if dim == "planar" else U3
                 us, its = step_cost(sc, u0, 1e-3)
                 m = FilamentModel(sc)
                 p = m.default_params()
                 ur = _time(lambda m=m, u0=u0, p=p: m.rhs(u0, p)) * 1e6
-                print(f"{name:8s} {dim:6s} {hyd:6s} {('on' if on else 'off'):9s} "
-                      f"{us:9.0f} {its:6.2f} {ur:8.0f}")
+                print(
+                    f"{name:8s} {dim:6s} {hyd:6s} {('on' if on else 'off'):9s} "
+                    f"{us:9.0f} {its:6.2f} {ur:8.0f}"
+                )
     sc = Scene(N=N, strength=20.0)
     print("\nJ0 variants, tip_ff 3D RPY (dt = 1e-3):")
     for jac, reuse in (("self", False), ("self", True), ("full", False), ("full", True)):
         us, its = step_cost(sc, U3, 1e-3, jacobian=jac, reuse=reuse)
-        tag = " (paper: self-mobility J0, new every step)" if (jac, reuse) == ("self", False) \
+        tag = (
+            " (paper: self-mobility J0, new every step)"
+            if (jac, reuse) == ("self", False)
             else (" (default)" if (jac, reuse) == ("full", True) else "")
-        print(f"  jacobian={jac:4s} reuse={str(reuse):5s}: {us:7.0f} us/step, "
-              f"{its:5.2f} Broyden iterations/step{tag}")
+        )
+        print(
+            f"  jacobian={jac:4s} reuse={str(reuse):5s}: {us:7.0f} us/step, "
+            f"{its:5.2f} Broyden iterations/step{tag}"
+        )
 
 
 def critical_f(model: FilamentModel, lo: float, hi: float) -> tuple[float, float]:
     def g(f: float) -> float:
-        return float(np.max(np.linalg.eigvals(model.jacobian(np.zeros(model.dim),
-                                                             np.array([f]))).real))
+        return float(
+            np.max(np.linalg.eigvals(model.jacobian(np.zeros(model.dim), np.array([f]))).real)
+        )
 
     fc = brentq(g, lo, hi, xtol=1e-8)
     lam = np.linalg.eigvals(model.jacobian(np.zeros(model.dim), np.array([fc])))
@@ -161,18 +177,22 @@ def part2() -> None:
     last = tr.t > T_settle - 2.0
     omega = np.polyfit(tr.t[last], ang[last], 1)[0]
     Tp = 2 * np.pi / abs(omega)
-    print(f"transient: {tr.diagnostics.iterations.size} steps in {el:.1f} s; last 2 time "
-          f"units: tip radius {r[last].mean():.4f} +- {r[last].std():.1e}, omega = "
-          f"{omega:.4f}, period T = {Tp:.5f}")
+    print(
+        f"transient: {tr.diagnostics.iterations.size} steps in {el:.1f} s; last 2 time "
+        f"units: tip radius {r[last].mean():.4f} +- {r[last].std():.1e}, omega = "
+        f"{omega:.4f}, period T = {Tp:.5f}"
+    )
     uw = tr.states[-1]
     # reference end state: Richardson extrapolation of two fine BDF2 runs
     n_ref = 12800
     a = flow(m, uw, p, Tp, steps=n_ref)
     b = flow(m, uw, p, Tp, steps=2 * n_ref)
     ref = (4 * b - a) / 3
-    print(f"reference: BDF2 {n_ref}/{2 * n_ref} steps, Richardson; |difference| "
-          f"{np.max(np.abs(a - b)):.1e}; rotating wave check |U(T) - U(0)| = "
-          f"{np.max(np.abs(ref - uw)):.1e}")
+    print(
+        f"reference: BDF2 {n_ref}/{2 * n_ref} steps, Richardson; |difference| "
+        f"{np.max(np.abs(a - b)):.1e}; rotating wave check |U(T) - U(0)| = "
+        f"{np.max(np.abs(ref - uw)):.1e}"
+    )
     rows = []
     for n in (100, 200, 400, 800, 1600, 3200):
         t0 = time.perf_counter()
@@ -181,11 +201,25 @@ def part2() -> None:
         rows.append(("BDF2", f"steps={n}", el, np.max(np.abs(U - ref)), n))
     for rtol in (1e-4, 1e-5, 1e-6, 1e-7, 1e-8, 1e-9):
         t0 = time.perf_counter()
-        sol = solve_ivp(lambda t, y: m.rhs(y, p), (0.0, Tp), uw, method="Radau", rtol=rtol,
-                        atol=rtol * 1e-2, jac=lambda t, y: m.jacobian(y, p))
+        sol = solve_ivp(
+            lambda t, y: m.rhs(y, p),
+            (0.0, Tp),
+            uw,
+            method="Radau",
+            rtol=rtol,
+            atol=rtol * 1e-2,
+            jac=lambda t, y: m.jacobian(y, p),
+        )
         el = time.perf_counter() - t0
-        rows.append(("Radau", f"rtol={rtol:.0e}", el, np.max(np.abs(sol.y[:, -1] - ref)),
-                     f"{sol.nfev} rhs, {sol.njev} jac, {sol.t.size - 1} steps"))
+        rows.append(
+            (
+                "Radau",
+                f"rtol={rtol:.0e}",
+                el,
+                np.max(np.abs(sol.y[:, -1] - ref)),
+                f"{sol.nfev} rhs, {sol.njev} jac, {sol.t.size - 1} steps",
+            )
+        )
     print(f"{'method':6s} {'setting':12s} {'wall s':>8s} {'max err':>9s}  notes")
     for meth, setting, el, err, note in rows:
         print(f"{meth:6s} {setting:12s} {el:8.3f} {err:9.2e}  {note}")
@@ -196,8 +230,10 @@ def part2() -> None:
     print("equal-accuracy wall times (log-log interpolation):")
     for target in (1e-3, 1e-4, 1e-5, 1e-6):
         x, y = _interp_time(er, trd, target), _interp_time(eb, tb, target)
-        print(f"  error {target:.0e}: Radau {x:8.3f} s, BDF2 {y:8.3f} s, ratio Radau/BDF2 "
-              f"= {x / y:6.1f}")
+        print(
+            f"  error {target:.0e}: Radau {x:8.3f} s, BDF2 {y:8.3f} s, ratio Radau/BDF2 "
+            f"= {x / y:6.1f}"
+        )
 
 
 def main() -> None:

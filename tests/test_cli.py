@@ -55,13 +55,18 @@ def test_export_and_show(default_run: Path, tmp_path: Path, capsys) -> None:
     assert main(["export", str(default_run), "--format", "json", "-o", str(out_j)]) == 0
     assert json.loads(out_j.read_text())["directed"] is True
     assert main(["show", str(default_run)]) == 0
-    assert "BP1" in capsys.readouterr().out
+    g = BranchGraph.load_json(default_run / "graph.json")
+    out = capsys.readouterr().out
+    assert all(g.g.nodes[s]["label"] in out for s in g.special_points)
 
 
 def test_plot_command(default_run: Path, tmp_path: Path) -> None:
-    assert main(["plot", str(default_run), "--out", str(tmp_path / "p"),
-                 "--observable", "u0"]) == 0
-    assert (tmp_path / "p" / "diagram.png").stat().st_size > 5000
+    assert main(["plot", str(default_run), "--out", str(tmp_path / "p")]) == 0
+    img = imread(tmp_path / "p" / "diagram.png")
+    assert img[..., :3].std() > 0.05
+    assert main(["plot", str(default_run), "--out", str(tmp_path / "q"),
+                 "--observable", "norm"]) == 0
+    assert (tmp_path / "q" / "diagram.png").exists()
 
 
 def test_run_refuses_existing_directory_and_resumes_complete_run(
@@ -122,3 +127,36 @@ def test_simulate_catalog_model(tmp_path: Path, capsys) -> None:
     x, y = summary["final_state"]
     assert abs(abs(x) - 0.5) < 1e-3 and abs(y + 0.25) < 1e-3
     assert (tmp_path / "sim" / "timeseries.png").exists()
+
+
+def test_simulate_filament_relaxes_below_instability(tmp_path: Path) -> None:
+    text = (ROOT / "branches" / "tip_ff.toml").read_text().replace("N = 20", "N = 8")
+    text += ("\n[simulate]\nt_end = 0.3\ndt = 2e-3\nframes = 6\nstrength = 10.0\n"
+             "perturbation = 0.02\n")
+    spec = tmp_path / "s.toml"
+    spec.write_text(text)
+    assert main(["simulate", str(spec), "--out", str(tmp_path / "sim")]) == 0
+    d = np.load(tmp_path / "sim" / "trajectory.npz")
+    assert d["positions"].shape == (6, 9, 3) and d["tip"].shape == (151, 3)
+    # Below the double Hopf (f ~ 34) a perturbed upright filament relaxes back.
+    r = np.hypot(d["tip"][:, 0], d["tip"][:, 1])
+    assert r[-1] < 0.2 * r[0]
+    summary = json.loads((tmp_path / "sim" / "summary.json").read_text())
+    assert summary["max_constraint_residual"] < 1e-12
+    assert (tmp_path / "sim" / "snapshots.png").stat().st_size > 10_000
+
+
+def test_default_run_directory_never_reused(tmp_path: Path, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    spec = tmp_path / "mini.toml"
+    spec.write_text("[model]\nname = 'pitchfork'\n[continuation]\nrange = [-1.0, -0.5]\n"
+                    "ds = 0.1\nmax_points = 4\n[output]\nplots = false\ngraphml = false\n")
+    for _ in range(2):
+        assert main(["run", str(spec), "--quiet"]) == 0
+    assert (tmp_path / "runs" / "mini" / "graph.json").exists()
+    assert (tmp_path / "runs" / "mini-2" / "graph.json").exists()
+    # --resume without --out picks the newest run of that spec.
+    assert main(["run", str(spec), "--quiet", "--resume"]) == 0
+    assert not (tmp_path / "runs" / "mini-3").exists()
+    m = json.loads((tmp_path / "runs" / "mini-2" / "run.json").read_text())
+    assert m["resumed"] == 1

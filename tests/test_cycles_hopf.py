@@ -79,3 +79,44 @@ def test_matrix_free_shooting_with_hookstep_corrector_matches_dense():
         assert np.hypot(*pt.u) == pytest.approx(e["r"], abs=1e-7)
         assert pt.extra["period"] == pytest.approx(e["period"], abs=1e-7)
     assert corr.counts["residual_evals"] > 0  # cost is reported in flow evaluations
+
+
+def test_shooting_on_a_models_own_stepper_by_finite_differences():
+    # A model that brings a fixed-step flow and nothing else: Jacobian-vector
+    # products are finite differences of the flow (one flow evaluation each).
+    from contfil.engine.default_flow import RadauFlow
+    from contfil.engine.hookstep import newton_hookstep
+
+    base = stuart_landau(mu=0.5, b=0.3)
+    rf = RadauFlow(base.rhs, base.jacobian, steps=50)
+
+    class Stepped:
+        name, dim, param_names, symmetries = "stepped", 2, base.param_names, base.symmetries
+        default_params, initial_state, rhs = base.default_params, base.initial_state, base.rhs
+        observables = base.observables
+        flow = staticmethod(rf.flow)
+
+    pb = PeriodicOrbitProblem(Stepped(), "mu", dense_threshold=0)
+    assert not pb.ops.exact_tangent
+    ex = exact_cycle(0.5, b=0.3)
+    x, info = newton_hookstep(lambda x: pb.residual(x, 0.5), np.array([0.9, 0.1, 5.0]),
+                              jvp=lambda x, v: pb.jvp(x, 0.5, v), tol=1e-9)
+    assert np.hypot(*x[:2]) == pytest.approx(ex["r"], abs=1e-7)
+    assert x[2] == pytest.approx(ex["period"], abs=1e-7)
+    # honest cost: every residual and every jvp is one flow evaluation
+    assert pb.flow_evals == info["residual_evals"] + info["jvp_evals"]
+    st = pb.stability(x, 0.5)
+    # one-sided FD of the flow: multipliers good to ~1e-7 absolute
+    np.testing.assert_allclose(st.values[~st.trivial].real, [ex["multiplier"]], atol=1e-7)
+
+
+def test_period_means_of_observables():
+    # On the cycle x = r cos(Ωt): mean of u0 = x is 0, mean of |u| is r.
+    m = stuart_landau(mu=0.5, b=0.3)
+    pb = PeriodicOrbitProblem(m, "mu", steps=40, period_means=16)
+    ex = exact_cycle(0.5, b=0.3)
+    x = np.array([ex["r"], 0.0, ex["period"]])
+    obs = pb.observables(x, 0.5)
+    assert obs["mean_norm"] == pytest.approx(ex["r"], abs=1e-8)
+    assert obs["mean_u0"] == pytest.approx(0.0, abs=1e-8)
+    assert obs["period"] == ex["period"]

@@ -162,3 +162,106 @@ def test_filament_upright_double_hopf_whirling(tmp_path) -> None:
     assert all(abs(pt.extra["omega"]) > 1.0 for pt in whirl.points)
     E = whirl.observable("bending_energy")
     assert E[0] < 0.05 and np.all(np.diff(E) > 0)  # grows from the upright state
+
+
+def test_o2_double_hopf_rotating_wave_only_when_asked() -> None:
+    """O(2) Hopf normal form (a = -1, b = -2): the rotating wave |z1|^2 = mu,
+    omega_RW = omega; the standing wave is skipped by request and marked."""
+    from contfil.graph.engine_adapter import default_switchers
+    from contfil.models.catalog import o2_hopf
+
+    e = o2_hopf(omega=1.5)
+    problem = EquilibriumProblem(e.model, e.param)
+    settings = ContinuationSettings(ds=0.1, ds_max=0.2, p_min=-1.0, p_max=0.6)
+    ex = Explorer(Seed(problem, e.u0, e.p0), ea.engine_continuer,
+                  ExplorerSettings(depth=1, p_range=(-1.0, 0.6), max_points=6,
+                                   branch_kinds=("equilibrium", "rotating_wave")),
+                  default_switchers(branch_kinds=("equilibrium", "rotating_wave")), settings,
+                  symmetries=e.model.symmetries, progress=Progress(enabled=False))
+    g = ex.run()
+    assert [g.branch(b).kind for b in g.branches] == ["equilibrium", "rotating_wave"]
+    sp = g.special_point("S0")
+    assert sp.kind == "double_hopf" and sp.data["not_followed"]
+    for pt in g.branch("B1").points:
+        assert abs(np.linalg.norm(pt.u) - np.sqrt(pt.p)) < 1e-6
+        assert abs(abs(pt.extra["omega"]) - 1.5) < 1e-6
+        assert pt.stable
+
+
+def test_progress_line_only_on_a_terminal() -> None:
+    import io
+
+    class Tty(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    tty, pipe = Tty(), io.StringIO()
+    for stream in (tty, pipe):
+        pr = Progress(stream=stream)
+        pr.update("T0001+", "rotating_wave", "f", 35.25, 12, 1, force=True)
+        pr.close()
+    out = tty.getvalue()
+    assert "T0001+" in out and "f=35.25" in out and "points=12" in out and "events=1" in out
+    assert "00:0" in out  # elapsed mm:ss
+    assert pipe.getvalue() == ""
+
+
+def test_fold_is_passed_and_kept_as_unswitchable_node() -> None:
+    """Saddle-node u' = mu + u^2: the branch turns at the fold (mu, u) = (0, 0)
+    from the stable lower half u = -sqrt(-mu) onto the unstable upper half."""
+    from contfil.models.catalog import saddle_node
+
+    e = saddle_node()
+    problem = EquilibriumProblem(e.model, e.param)
+    settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=0.5)
+    ex = Explorer(Seed(problem, e.u0, e.p0), ea.engine_continuer,
+                  ExplorerSettings(depth=2, p_range=(-1.0, 0.5)),
+                  ea.default_switchers(), settings, progress=Progress(enabled=False))
+    g = ex.run()
+    assert len(g) == 1
+    (sid,) = g.special_points
+    node = g.g.nodes[sid]
+    assert node["kind"] == "fold" and node["label"] == "LP1" and not node["switchable"]
+    assert abs(g.special_point(sid).point.p) < 1e-8
+    pts = g.branch("B0").points
+    assert pts[-1].u[0] > 0.9 and abs(pts[-1].p + 1.0) < 1e-9  # back at mu = -1, upper half
+    for pt in pts:
+        assert abs(pt.u[0] ** 2 + pt.p) < 1e-9
+        if abs(pt.u[0]) > 1e-6:
+            assert pt.stable == (pt.u[0] < 0)
+
+
+def test_root_direction_and_both_directions() -> None:
+    e = z2_pitchfork()
+    problem = EquilibriumProblem(e.model, e.param)
+    settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=1.0)
+    for seed, lo_first in [(Seed(problem, np.zeros(2), 0.5, direction=-1), True),
+                           (Seed(problem, np.zeros(2), 0.5, direction=1), False)]:
+        g = Explorer(seed, ea.engine_continuer, ExplorerSettings(depth=0, p_range=(-1, 1)),
+                     SwitcherRegistry(), settings, progress=Progress(enabled=False)).run()
+        ps = g.branch("B0").parameter_values()
+        assert ps[0] == 0.5 and (ps[-1] == -1.0 if lo_first else ps[-1] == 1.0)
+    # Both directions: one branch covering the whole range, in increasing order.
+    seed = Seed(problem, np.zeros(2), 0.5, direction=1, both_directions=True)
+    g = Explorer(seed, ea.engine_continuer, ExplorerSettings(depth=0, p_range=(-1, 1)),
+                 SwitcherRegistry(), settings, progress=Progress(enabled=False)).run()
+    ps = g.branch("B0").parameter_values()
+    assert ps[0] == -1.0 and ps[-1] == 1.0 and np.all(np.diff(ps) > 0)
+    assert np.sum(np.isclose(ps, 0.5)) == 1  # the shared seed point appears once
+    (sid,) = g.special_points
+    assert abs(g.special_point(sid).point.p) < 1e-8
+    assert g.branch("B0").points[g.g.edges["B0", sid]["index"]].p < 0 < g.branch(
+        "B0").points[g.g.edges["B0", sid]["index"] + 1].p
+
+
+def test_restart_from_any_stored_point() -> None:
+    e = z2_pitchfork()
+    _, g = _explore(e, None, both=True)
+    problem = EquilibriumProblem(e.model, e.param)
+    seed = ea.restart_seed(g, "B1", 5, problem)
+    settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=1.0)
+    steps = list(ea.engine_continuer(seed, 1, settings, None))[:4]
+    ref = np.atleast_1d(e.exact["branch"](steps[-1].point.p))
+    assert steps[0].point.p == g.point("B1", 5).p
+    assert np.allclose(np.abs(steps[-1].point.u), np.abs(ref), atol=1e-9)
+    assert steps[-1].point.p != steps[0].point.p

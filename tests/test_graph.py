@@ -111,11 +111,16 @@ def test_cycles_compared_by_phase_invariant_signature() -> None:
                         kind=PERIODIC_ORBIT)
         for pt in br.points:
             pt.extra["period"] = T0 + 0.1 * pt.p
-            pt.observables = {"amplitude": float(np.sqrt(pt.p))}
+            # a period mean (phase-invariant) and a value at the phase origin
+            pt.observables = {"mean_amplitude": float(np.sqrt(pt.p)), "u0": float(pt.u[0])}
         return br
 
     assert same_branch(cyc(0.0, 3.0), cyc(2.0, 3.0))  # other phase origin, same orbits
-    assert not same_branch(cyc(0.0, 3.0), cyc(0.0, 4.0))
+    assert not same_branch(cyc(0.0, 3.0), cyc(0.0, 4.0))  # other period
+    other = cyc(0.0, 3.0)
+    for pt in other.points:
+        pt.observables["mean_amplitude"] *= 1.5
+    assert not same_branch(cyc(0.0, 3.0), other)  # other mean amplitude
 
 
 def test_same_special_point() -> None:

@@ -131,6 +131,47 @@ def _cli(args: list[str], env_extra: dict[str, str] | None = None) -> subprocess
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
 
 
+O2_SPEC = """
+[model]
+name = "o2_hopf"
+
+[continuation]
+range = [-1.0, 1.0]
+ds = 0.1
+ds_max = 0.2
+max_points = 14
+
+[explorer]
+depth = 1
+branches = ["equilibrium", "rotating_wave"]
+
+[output]
+plots = false
+graphml = false
+"""
+
+
+def test_kill_inside_rotating_wave_branch_then_resume(tmp_path: Path) -> None:
+    """Resume in the middle of a rotating wave (unknowns u and omega, a moving
+    phase reference): the same points as without the kill."""
+    spec_path = tmp_path / "o2.toml"
+    spec_path.write_text(O2_SPEC)
+    spec = load_spec(spec_path)
+    ref = run_study(spec, out=tmp_path / "ref", progress=Progress(enabled=False))
+    n_root = len(ref.graph.branch("B0").points)
+    assert [b.kind for b in ref.graph.branches.values()] == ["equilibrium", "rotating_wave"]
+    run = tmp_path / "run"
+    p = _cli(["run", str(spec_path), "--out", str(run), "--quiet"],
+             {"CONTFIL_TEST_CRASH_AFTER": str(n_root + 4)})
+    p.wait(timeout=120)
+    assert p.returncode == -signal.SIGKILL
+    res = run_study(spec, out=run, resume=True, progress=Progress(enabled=False))
+    _assert_equal_runs(ref.graph, res.graph)
+    for a, b in zip(ref.graph.branch("B1").points, res.graph.branch("B1").points, strict=True):
+        assert abs(a.extra["omega"] - b.extra["omega"]) <= 1e-12
+    assert res.n_computed_points == _check_logs(run) - (n_root + 4)
+
+
 def test_injected_kills_then_resume_equal_uninterrupted(reference, tmp_path: Path) -> None:
     spec_path, ref = reference
     run = tmp_path / "run"

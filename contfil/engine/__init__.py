@@ -24,6 +24,12 @@ from contfil.engine.events import (
 )
 from contfil.engine.newton import NewtonInfo, newton_dense, newton_krylov
 from contfil.engine.problem_base import Problem, Stability
+from contfil.engine.switching import (
+    branch_point_tangents,
+    hopf_data,
+    o2_hopf_modes,
+    switch_at_branch_point,
+)
 
 __all__ = [
     "Branch",
@@ -47,4 +53,8 @@ __all__ = [
     "newton_dense",
     "newton_krylov",
     "shift_invert_stability",
+    "branch_point_tangents",
+    "hopf_data",
+    "o2_hopf_modes",
+    "switch_at_branch_point",
 ]

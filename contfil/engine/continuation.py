@@ -618,8 +618,9 @@ class Continuation:
             for ev in self.events:
                 for j in ev.crossed(prev.values[ev.name], rec.values[ev.name]):
                     hits.append((ev, j))
-            hit_names = {ev.name for ev, _ in hits}
-            hits = [(ev, j) for ev, j in hits if not (set(ev.suppressed_by) & hit_names)]
+            # suppressed_by may name events or special-point kinds
+            hit_keys = {ev.name for ev, _ in hits} | {ev.kind for ev, _ in hits}
+            hits = [(ev, j) for ev, j in hits if not (set(ev.suppressed_by) & hit_keys)]
             for ev, j in hits:
                 sp = self._localise(ev, j, prev, rec)
                 if sp is not None:

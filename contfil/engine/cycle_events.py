@@ -86,16 +86,66 @@ class CycleFoldEvent(FoldEvent):
 class CycleBranchPointEvent(BranchPointEvent):
     """Branch point of cycles (pitchfork / transcritical / symmetry breaking).
 
+    Dense problems: the sign of the bordered determinant (as for equilibria).
+    Matrix-free problems (large models, finite-difference Jacobians): the
+    bordered-solve test of the base class needs accurate Krylov solves that
+    finite differences of a flow cannot give cheaply, so the test uses the
+    multipliers already computed: the number of non-trivial real multipliers
+    above +1 changes while ``τ_p`` keeps its sign (at a fold ``τ_p`` flips,
+    and the fold event reports it); localised on ``log μ`` of the real
+    multiplier nearest +1.
+
     Data for switching: the critical Floquet eigenvector (``v_re``), and for
     dense problems the second tangent ``tangent2`` (the null vector of
     ``[G_x G_p]`` orthogonal, in the arclength metric, to the branch tangent).
     """
 
+    imag_tol = 1e-6
+    needs_stability = True
+
     def __init__(self) -> None:
         super().__init__(kind=CYCLE_BRANCH_POINT, name="cycle_branch_point")
 
+    def _dense(self, ctx: EventContext) -> bool:
+        return bool(ctx.problem.dense) or ctx.apply_bordered is None
+
+    def _real(self, ctx: EventContext) -> NDArray[np.complex128]:
+        vals, _ = _nontrivial(ctx.stability)
+        return vals[_is_real(vals, self.imag_tol) & (vals.real > 0)]
+
+    def values(self, ctx: EventContext) -> Array:
+        if self._dense(ctx):
+            return super().values(ctx)
+        c = self._real(ctx)
+        return np.array([float(np.sum(c.real > 1.0)), float(np.sign(ctx.tangent[-1]))])
+
+    def accepted(self, ctx: EventContext, values: Array) -> Array:
+        return values if not self._dense(ctx) else super().accepted(ctx, values)
+
+    def crossed(self, v0: Array, v1: Array) -> list[int]:
+        if v0.size == 2:
+            return [0] if (v0[0] != v1[0] and v0[1] == v1[1]) else []
+        return super().crossed(v0, v1)
+
+    def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
+        if self._dense(ctx0):
+            return super().localiser(ctx0, ctx1, j)
+
+        def g(ctx: EventContext) -> float:
+            c = self._real(ctx)
+            if c.size == 0:
+                return float("nan")
+            lg = np.log(c.real)
+            return float(lg[int(np.argmin(np.abs(lg)))])
+
+        return g
+
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
-        kind, data = super().special_point_data(ctx, j, ctx0, ctx1)
+        if self._dense(ctx):
+            kind, data = super().special_point_data(ctx, j, ctx0, ctx1)
+        else:
+            kind, data = self.kind, {"test_value": float(self.localiser(ctx0, ctx1, j)(ctx)),
+                                     "switchable": True, "tangent": ctx.tangent.copy()}
         data.update(_critical_vector(ctx.stability_with_vectors(), 1.0))
         if ctx.jacobian is not None and ctx.gp is not None:
             A = np.column_stack([ctx.jacobian, ctx.gp])

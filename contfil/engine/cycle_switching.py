@@ -145,7 +145,9 @@ def solve_with_amplitude(
     return X[:n], float(X[n]), info
 
 
-def _start(problem: Problem, X1: tuple[Array, float], X_star: Array, info: dict[str, Any]) -> BranchStart:
+def _start(
+    problem: Problem, X1: tuple[Array, float], X_star: Array, info: dict[str, Any]
+) -> BranchStart:
     x1, p1 = X1
     t = np.concatenate([x1, [p1]]) - X_star
     t = t / np.linalg.norm(t)
@@ -206,10 +208,12 @@ def _o2_modes(model: Model, hopf: SpecialPoint, symmetry_index: int) -> tuple[di
     if hd["multiplicity"] < 2 or "v2_re" not in hd:
         # one eigenvector given: complete the eigenspace with its rotation by π/2
         v = np.asarray(hd["v_re"]) + 1j * np.asarray(hd["v_im"])
-        v2 = sym[symmetry_index].act(np.pi / 2, v.real) + 1j * sym[symmetry_index].act(np.pi / 2, v.imag)
+        g = sym[symmetry_index]
+        v2 = g.act(np.pi / 2, v.real) + 1j * g.act(np.pi / 2, v.imag)
         hd = dict(hd, v2_re=v2.real, v2_im=v2.imag, multiplicity=2)
     modes = o2_hopf_modes(hd, L)
-    if abs(np.linalg.det(np.column_stack(modes["rotating"]).conj().T @ np.column_stack(modes["rotating"]))) < 1e-10:
+    R = np.column_stack(modes["rotating"])
+    if abs(np.linalg.det(R.conj().T @ R)) < 1e-10:  # the two unit modes are parallel
         raise ContfilError("double Hopf: the critical eigenspace is degenerate (one mode only)")
     return dict(hd, modes=modes), L
 
@@ -361,7 +365,9 @@ def cycles_from_branch_point(
     of the two conjugate halves.
     """
     if sp.kind != CYCLE_BRANCH_POINT:
-        raise ContfilError(f"cycles_from_branch_point needs {CYCLE_BRANCH_POINT!r}, got {sp.kind!r}")
+        raise ContfilError(
+            f"cycles_from_branch_point needs {CYCLE_BRANCH_POINT!r}, got {sp.kind!r}"
+        )
     x_bp = x_from_point(problem, sp)
     p_bp = float(sp.point.p)
     n = problem.n
@@ -371,7 +377,9 @@ def cycles_from_branch_point(
     elif sp.data.get("v_re") is not None:
         v = np.asarray(sp.data["v_re"], dtype=float)
         if problem.subspace is not None:
-            raise ContfilError("symmetry breaking out of an invariant subspace: solve in the full model")
+            raise ContfilError(
+                "symmetry breaking out of an invariant subspace: solve in the full model"
+            )
         dx = np.concatenate([v, np.zeros(n - v.size)])
     else:
         raise ContfilError("cycle branch point without tangent2 or eigenvector data")
@@ -392,7 +400,9 @@ def cycles_from_period_doubling(
 ) -> BranchStart:
     """First cycle of the period-doubled branch (a new problem with twice the steps)."""
     if sp.kind != PERIOD_DOUBLING:
-        raise ContfilError(f"cycles_from_period_doubling needs {PERIOD_DOUBLING!r}, got {sp.kind!r}")
+        raise ContfilError(
+            f"cycles_from_period_doubling needs {PERIOD_DOUBLING!r}, got {sp.kind!r}"
+        )
     if sp.data.get("v_re") is None:
         raise ContfilError("period-doubling point without its critical eigenvector")
     if type(problem) is not PeriodicOrbitProblem or problem.subspace is not None:

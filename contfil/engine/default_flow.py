@@ -183,7 +183,9 @@ class RadauFlow:
         K = np.eye(3 * n) - h * np.kron(RADAU_A, np.ones((n, n))) * np.tile(np.hstack(Js), (3, 1))
         lu, piv, info = _getrf(K, overwrite_a=True)
         if info > 0:
-            raise ConvergenceError(f"RadauFlow: singular stage matrix (h = {h:.3e}); use more steps")
+            raise ConvergenceError(
+                f"RadauFlow: singular stage matrix (h = {h:.3e}); use more steps"
+            )
         return lu, piv
 
     def _step(

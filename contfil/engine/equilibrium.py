@@ -16,7 +16,7 @@ from contfil.engine.eigen import (
     shift_invert_stability,
 )
 from contfil.engine.problem_base import Problem, Stability, fd_step
-from contfil.errors import NonFiniteError, SpecError
+from contfil.errors import ConvergenceError, NonFiniteError, SpecError
 from contfil.models.protocol import Model, param_index
 
 Array = NDArray[np.float64]
@@ -158,7 +158,8 @@ class EquilibriumProblem(Problem):
 
     def stability(self, x: Array, p: float, vectors: bool = False) -> Stability:
         """Eigenvalues of ``rhs_u`` (all when dense, leading ``n_eigs`` otherwise)."""
-        if self.dense:
+        if self.dense or self.n <= self.n_eigs + 2:
+            # (tiny problems on the matrix-free path: Arnoldi needs k < n - 1)
             J = self.jacobian(x, p)
             if not np.all(np.isfinite(J)):
                 raise NonFiniteError(
@@ -176,7 +177,25 @@ class EquilibriumProblem(Problem):
             mv = lambda v: J @ v  # noqa: E731
         else:
             mv = lambda v: self.jvp(x, p, v)  # noqa: E731
-            inv = inverse_from_jvp(mv, self.n, self.eig_shift)
+            # GMRES on J - sigma I stalls when sigma sits on an eigenvalue
+            # (e.g. sigma = 0 while localising a branch point): retry with the
+            # shift moved by 1e-3 of a rough |J| scale.
+            rng = np.random.default_rng(0)
+            v0 = rng.standard_normal(self.n)
+            scale = float(np.linalg.norm(mv(v0)) / np.linalg.norm(v0))
+            last: Exception | None = None
+            for sig in (
+                self.eig_shift,
+                self.eig_shift + 1e-3 * scale,
+                self.eig_shift - 1e-3 * scale,
+            ):
+                try:
+                    inv = inverse_from_jvp(mv, self.n, sig)
+                    return shift_invert_stability(inv, self.n, sig, k, vectors=vectors, matvec=mv)
+                except ConvergenceError as exc:
+                    last = exc
+            assert last is not None
+            raise last
         return shift_invert_stability(inv, self.n, self.eig_shift, k, vectors=vectors, matvec=mv)
 
     def state(self, x: Array) -> Array:

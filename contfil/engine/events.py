@@ -31,8 +31,8 @@ Override ``crossed`` when a sign change is not the right detector (e.g. an
 eigenvalue count), ``localiser`` when the function to localise differs from
 ``values`` and ``special_point_data`` to attach switching data. ``accepted``
 lets an event update internal state (e.g. bordering vectors) after a point
-is accepted. ``suppressed_by`` names events whose detection in the same
-interval hides this one (a pitchfork on a branch that turns in ``p`` also
+is accepted. ``suppressed_by`` names events (or special-point kinds) whose
+detection in the same interval hides this one (a pitchfork on a branch that turns in ``p`` also
 changes the sign of the fold test; it must be reported once, as a branch
 point).
 """
@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.engine.branch import BRANCH_POINT, DOUBLE_HOPF, FOLD, HOPF
+from contfil.engine.branch import BRANCH_POINT, CYCLE_BRANCH_POINT, DOUBLE_HOPF, FOLD, HOPF
 from contfil.engine.problem_base import Stability
 
 if TYPE_CHECKING:
@@ -200,14 +200,25 @@ class FoldEvent(Event):
     ----------
     kind:
         ``FOLD`` for equilibria; ``CYCLE_FOLD`` when reused for periodic orbits.
+    name:
+        Unique event name in a run.
+    suppressed_by:
+        Event names or special-point kinds whose detection in the same step
+        hides this one (default: any branch point of equilibria or cycles).
     """
 
     name = "fold"
-    suppressed_by = ("branch_point",)
+    suppressed_by = (BRANCH_POINT, CYCLE_BRANCH_POINT)
 
-    def __init__(self, kind: str = FOLD, name: str = "fold") -> None:
+    def __init__(
+        self,
+        kind: str = FOLD,
+        name: str = "fold",
+        suppressed_by: tuple[str, ...] = (BRANCH_POINT, CYCLE_BRANCH_POINT),
+    ) -> None:
         self.kind = kind
         self.name = name
+        self.suppressed_by = tuple(suppressed_by)
 
     def values(self, ctx: EventContext) -> Array:
         return np.array([ctx.tangent[-1]])
@@ -218,86 +229,77 @@ class FoldEvent(Event):
 
 class BranchPointEvent(Event):
     """Simple branch point: the determinant of the bordered matrix
-    ``[[G_x, G_p], [W tau^T]]`` changes sign (a fold does not change it).
+    ``M = [[G_x, G_p], [W tau^T]]`` changes sign (a fold does not change it).
 
     Dense problems use the determinant from the LU factorisation the
     tangent needs anyway, scaled as ``det(M) / (|M|_F/sqrt(n+1))^(n+1)``
     (at most 1 in magnitude); it is localised relative to its value at the
     left point, so nothing overflows or underflows for any ``n``.
-    Matrix-free problems use the bordered linear solve test function of
-    Govaerts: solve ``[[M, b], [c^T, 0]] (v, s) = (0, 1)``; ``s`` vanishes
-    exactly when ``M`` is singular. ``b = c`` is updated to the normalised
-    ``v`` after each accepted point (and the value at that point recomputed,
-    so consecutive values always share the same bordering).
+
+    Matrix-free problems use the sign of ``det M`` from the spectrum:
+    ``sign det M = sign(tau_p) * sign det G_x`` and ``sign det G_x`` flips
+    exactly when a real eigenvalue crosses zero (for Floquet multipliers:
+    a real multiplier crosses 1), so the test is
+    ``sign(tau_p) * (-1)^(number of real eigenvalues > 0)``, localised on the
+    real eigenvalue nearest zero (signed by that parity). The shift-invert
+    eigenvalues nearest zero are exactly the ones that can cross. Trivial
+    (symmetry) eigenvalues are excluded. (A bordered-solve test with
+    bordering vectors updated along the branch misses later branch points:
+    the vectors converge to the first critical mode and become orthogonal to
+    the next one, so that approach is not used.)
     """
 
     name = "branch_point"
 
-    def __init__(self, kind: str = BRANCH_POINT, name: str = "branch_point") -> None:
+    def __init__(
+        self, kind: str = BRANCH_POINT, name: str = "branch_point", imag_tol: float = 1e-7
+    ) -> None:
         self.kind = kind
         self.name = name
-        self._b: Array | None = None
+        self.imag_tol = imag_tol
 
-    def _mf_value(self, ctx: EventContext, b: Array) -> tuple[float, Array]:
-        from scipy.sparse.linalg import LinearOperator, gmres
+    @staticmethod
+    def _dense(ctx: EventContext) -> bool:
+        return bool(ctx.problem.dense) and not np.isnan(ctx.log_det)
 
-        m = ctx.X.size
-        A = ctx.apply_bordered
-        assert A is not None
+    def _spectral(self, ctx: EventContext) -> tuple[float, float]:
+        st = ctx.stability
+        v = np.asarray(st.values, dtype=complex)
+        keep = np.ones(v.size, dtype=bool) if st.trivial is None else ~np.asarray(st.trivial, bool)
+        v = v[keep]
+        real = v[np.abs(v.imag) <= self.imag_tol * np.maximum(1.0, np.abs(v))].real
+        if st.kind == "multipliers":
+            real = real - 1.0
+        parity = -1.0 if int(np.sum(real > 0)) % 2 else 1.0
+        tp = float(np.sign(ctx.tangent[-1])) or 1.0
+        near = float(np.min(np.abs(real))) if real.size else 1.0
+        return parity * tp, near
 
-        def mv(z: Array) -> Array:
-            z = np.asarray(z, float).ravel()
-            return np.concatenate([A(z[:m]) + b * z[m], [b @ z[:m]]])
-
-        rhs = np.zeros(m + 1)
-        rhs[-1] = 1.0
-        op = LinearOperator((m + 1, m + 1), matvec=mv)
-        Mop = None
-        P = ctx.precondition
-        if P is not None:
-            Mop = LinearOperator(
-                (m + 1, m + 1),
-                matvec=lambda z: np.concatenate(
-                    [P(np.asarray(z, float).ravel()[:m]), [np.asarray(z, float).ravel()[m]]]
-                ),
-            )
-        z0 = np.concatenate([b, [0.0]])
-        z, _ = gmres(op, rhs, x0=z0, rtol=1e-9, atol=0.0, restart=min(m + 1, 60), maxiter=10, M=Mop)
-        return float(z[m]), z[:m]
+    def values(self, ctx: EventContext) -> Array:
+        if self._dense(ctx):
+            return np.array([ctx.bp_test_dense()])
+        return np.array([self._spectral(ctx)[0]])
 
     def localiser(self, ctx0, ctx1, j):  # noqa: ANN001, ANN201
-        if ctx0.problem.dense or ctx0.apply_bordered is None:
+        if self._dense(ctx0):
             # Relative to the left point: no under/overflow for any n.
             ref = ctx0.log_det
             return lambda ctx: (
                 0.0 if ctx.log_det == -np.inf else float(ctx.det_sign * np.exp(ctx.log_det - ref))
             )
-        return super().localiser(ctx0, ctx1, j)
+        left = self._spectral(ctx0)[0]
 
-    def values(self, ctx: EventContext) -> Array:
-        if ctx.problem.dense or ctx.apply_bordered is None:
-            return np.array([ctx.bp_test_dense()])
-        if self._b is None:
-            rng = np.random.default_rng(12345)
-            b = rng.standard_normal(ctx.X.size)
-            self._b = b / np.linalg.norm(b)
-        s, _ = self._mf_value(ctx, self._b)
-        return np.array([s])
+        def g(ctx: EventContext) -> float:
+            sgn, near = self._spectral(ctx)
+            return (-1.0 if sgn == left else 1.0) * near
 
-    def accepted(self, ctx: EventContext, values: Array) -> Array:
-        if ctx.problem.dense or ctx.apply_bordered is None or self._b is None:
-            return values
-        _, v = self._mf_value(ctx, self._b)
-        nv = np.linalg.norm(v)
-        if nv > 0 and np.isfinite(nv):
-            self._b = v / nv
-            s, _ = self._mf_value(ctx, self._b)
-            return np.array([s])
-        return values
+        return g
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         return self.kind, {
-            "test_value": float(self.values(ctx)[0]),
+            "test_value": float(self.values(ctx)[0])
+            if self._dense(ctx)
+            else self._spectral(ctx)[1],
             "switchable": True,
             "tangent": ctx.tangent.copy(),
         }

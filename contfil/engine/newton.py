@@ -70,6 +70,7 @@ def newton_dense(
     tol: float = 1e-10,
     max_iter: int = 12,
     min_iter: int = 1,
+    step_tol: float = 1e-13,
 ) -> tuple[Array, NewtonInfo]:
     """Newton's method with a dense Jacobian ``jac(X)`` (LU each iteration).
 
@@ -121,8 +122,10 @@ def newton_dense(
             return X, NewtonInfo(False, it, res, hist, "non-finite")
         X, r, res = Xn, rn, resn
         hist.append(res)
-        # Stagnation at round-off: the update is below machine resolution.
-        if res > tol and _norm(dX) <= 4e-16 * (1.0 + _norm(X)) and res <= 1e3 * tol:
+        # Converged to round-off: when the residual cannot reach an absolute
+        # ``tol`` (large Jacobian entries, e.g. 1/h^2 of a fine grid) the
+        # Newton update still tells how far the solution is.
+        if res > tol and it >= 2 and _norm(dX) <= step_tol * (1.0 + _norm(X)) and res <= 1e4 * tol:
             return X, NewtonInfo(True, it, res, hist, "round-off")
     return X, NewtonInfo(res <= tol, max_iter, res, hist, "" if res <= tol else "max_iter")
 
@@ -138,6 +141,7 @@ def newton_krylov(
     gmres_restart: int = 60,
     gmres_maxiter: int = 10,
     preconditioner: Callable[[Array], Array] | None = None,
+    step_tol: float = 1e-13,
 ) -> tuple[Array, NewtonInfo]:
     """Inexact Newton with GMRES on ``jvp`` (no Jacobian matrix formed).
 
@@ -149,7 +153,11 @@ def newton_krylov(
     Parameters
     ----------
     preconditioner:
-        Optional right-hand approximate inverse ``M(v) ~ F'(X)^{-1} v``.
+        Optional approximate inverse ``M(v) ~ F'(X)^{-1} v`` (GMRES's ``M``).
+    step_tol:
+        As in :func:`newton_dense`: accept a residual at its round-off floor
+        (``<= 1e4 tol``) when the update is below ``step_tol (1 + max|X|)``
+        or no step decreases it.
     """
     X = np.array(X0, dtype=float)
     n = X.size
@@ -201,9 +209,14 @@ def newton_krylov(
                 break
             lam *= 0.5
         else:
+            if res <= 1e4 * tol:
+                # At the round-off floor of the residual: no step can reduce it.
+                return X, NewtonInfo(True, it, res, hist, "round-off", lin_it)
             if not np.isfinite(resn):
                 return X, NewtonInfo(False, it, res, hist, "non-finite", lin_it)
             return X, NewtonInfo(False, it, res, hist, "no descent", lin_it)
         X, r, res = Xn, rn, resn
         hist.append(res)
+        if res > tol and _norm(lam * dX) <= step_tol * (1.0 + _norm(X)) and res <= 1e4 * tol:
+            return X, NewtonInfo(True, it, res, hist, "round-off", lin_it)
     return X, NewtonInfo(res <= tol, max_iter, res, hist, "" if res <= tol else "max_iter", lin_it)

@@ -77,7 +77,9 @@ class RotatingWaveProblem(Problem):
     ) -> None:
         sym = model.symmetries.continuous
         if not sym:
-            raise SpecError(f"RotatingWaveProblem: model {model.name!r} declares no continuous symmetry")
+            raise SpecError(
+                f"RotatingWaveProblem: model {model.name!r} declares no continuous symmetry"
+            )
         if not 0 <= symmetry_index < len(sym):
             raise SpecError(f"symmetry_index {symmetry_index} out of range ({len(sym)} symmetries)")
         self.model = model
@@ -266,7 +268,8 @@ def rotating_wave_by_shooting(
 
     def F(z: Array) -> Array:
         uu, th = z[:n], float(z[n])
-        return np.concatenate([sla.expm(th * L) @ ops.flow(uu, params, T) - uu, [l_ref @ (uu - u_ref)]])
+        phi = ops.flow(uu, params, T)
+        return np.concatenate([sla.expm(th * L) @ phi - uu, [l_ref @ (uu - u_ref)]])
 
     def jvp(z: Array, v: Array) -> Array:
         uu, th = z[:n], float(z[n])

@@ -335,6 +335,8 @@ class BranchGraph:
                     + (f"  -> {', '.join(born)}" if born else "")
                     + (f"  [switch failed: {sp.data['switch_error'][:120]}]"
                        if (sp := self._sps[sid]).data.get("switch_error") else "")
+                    + (f"  [not followed: {', '.join(sp.data['not_followed'])}]"
+                       if sp.data.get("not_followed") else "")
                 )
         return "\n".join(lines)
 

@@ -222,6 +222,28 @@ class _EngineSegment:
         self.end_reason = str(run.stop_reason or "stopped")
 
 
+def restart_seed(graph: Any, bid: str, index: int, problem: Any,
+                 direction: int = 1) -> Seed:
+    """A :class:`Seed` that continues branch ``bid`` of ``graph`` from point
+    ``index`` (its state, kind-specific unknowns, parameter and tangent).
+
+    ``problem`` is the branch's problem (e.g. ``EquilibriumProblem(model,
+    param)``); its unknowns are the state followed by ``omega`` (rotating
+    wave) or ``period`` [, ``drift``] (cycles), as the engine orders them.
+    """
+    pt = graph.point(bid, index)
+    tail = [float(pt.extra[k]) for k in ("omega", "period", "drift") if k in pt.extra]
+    x = np.concatenate([np.asarray(pt.u, dtype=float), tail])
+    if x.size != problem.n:
+        raise ContfilError(
+            f"restart_seed: point {index} of {bid} has {x.size} unknowns, the problem {problem.n}")
+    tangent = None
+    if pt.tangent is not None and np.asarray(pt.tangent).size == problem.n + 1:
+        tangent = np.asarray(pt.tangent, dtype=float)
+    return Seed(problem=problem, x0=x, p0=float(pt.p), direction=direction, tangent=tangent,
+                label=f"{bid}[{index}]")
+
+
 def _current_x(run: Any, pt: Point) -> np.ndarray:
     """Problem unknowns of the last accepted point (needed to restart)."""
     x = getattr(run, "x", None)  # a public accessor, if the engine grows one
@@ -242,14 +264,21 @@ def engine_continuer(seed: Seed, direction: int, settings: Any,
 # ---------------------------------------------------------------- switching
 
 
-def default_switchers(standing_subspace: str | None = "auto") -> SwitcherRegistry:
+def default_switchers(standing_subspace: str | None = "auto",
+                      branch_kinds: tuple[str, ...] | None = None) -> SwitcherRegistry:
     """Engine switching functions by special-point kind (those that exist).
 
     ``standing_subspace``: invariant subspace in which standing waves born
     at an O(2) double Hopf are solved (``"auto"``: the model's only one, if
     it declares exactly one; ``None``: the full model with a drift unknown).
+    ``branch_kinds``: kinds of branch wanted (``None``: all); switches that
+    could only produce other kinds are not even attempted (their first
+    point may cost a shooting solve).
     """
     reg = SwitcherRegistry()
+
+    def wanted(*kinds: str) -> bool:
+        return branch_kinds is None or any(k in branch_kinds for k in kinds)
     try:
         sw = importlib.import_module("contfil.engine.switching")
     except ImportError:
@@ -293,11 +322,15 @@ def default_switchers(standing_subspace: str | None = "auto") -> SwitcherRegistr
             # The mirror-image rotating wave (which=1) is the same state up to
             # a reflection: the identity test would drop it, so skip it.
             try:
-                out.append(one_way(cs.rotating_wave_from_double_hopf(
-                    model, problem.param, sp, params=params_of(problem, sp.point.p)),
-                    "rotating wave"))
+                if wanted("rotating_wave"):
+                    out.append(one_way(cs.rotating_wave_from_double_hopf(
+                        model, problem.param, sp, params=params_of(problem, sp.point.p)),
+                        "rotating wave"))
             except (ContfilError, ValueError, ArithmeticError) as exc:
                 errors.append(f"rotating wave: {type(exc).__name__}: {exc}")
+            if not wanted("periodic_orbit", "relative_periodic_orbit"):
+                sp.data["not_followed"] = ["standing wave (periodic orbit)"]
+                return out
             sub = standing_subspace
             if sub == "auto":
                 subs = list(getattr(model.symmetries, "invariant_subspaces", {}) or {})

@@ -57,6 +57,8 @@ class Step:
 class Continuer(Protocol):
     """``continuer(seed, direction, settings, resume) -> iterable of Step``.
 
+    ``direction`` is relative to the seed: +1 goes the way ``seed.direction``
+    (and ``seed.tangent``) say, -1 the opposite way.
     ``resume`` is ``None`` for a fresh start, else the stored records of the
     task; the continuer then yields only the points *after* the last stored
     one. The returned object may carry ``end_reason`` (str) once exhausted.
@@ -88,6 +90,9 @@ class ExplorerSettings:
         Points per segment (one direction of one branch).
     dedup_after:
         Run the identity test after this many points of a new branch.
+    branch_kinds:
+        Kinds of branch to compute (``None``: all). Seeds of other kinds are
+        not continued; the special point lists them under ``not_followed``.
     """
 
     depth: int = 1
@@ -97,6 +102,7 @@ class ExplorerSettings:
     p_range: tuple[float, float] = (-np.inf, np.inf)
     max_points: int = 200
     dedup_after: int = 6
+    branch_kinds: tuple[str, ...] | None = None
 
 
 class Progress:
@@ -244,6 +250,11 @@ class Explorer:
                     continue
                 seeds = self.switchers.seeds(sp, branch, task.seed.problem)
                 self.graph.mark_switched(sid)
+                if s.branch_kinds is not None:
+                    skipped = [sd.kind for sd in seeds if sd.kind not in s.branch_kinds]
+                    if skipped:
+                        sp.data["not_followed"] = skipped
+                    seeds = [sd for sd in seeds if sd.kind in s.branch_kinds]
                 for j, sd in enumerate(seeds):
                     if not sd.label:
                         sd.label = f"{node['label']}#{j}"
@@ -264,7 +275,8 @@ class Explorer:
             seed.both_directions)
         if task.parent is None and seed.both_directions is None:
             both = False  # the root goes where the spec says
-        dirs = [seed.direction, -seed.direction] if both else [seed.direction]
+        # Senses relative to the seed's own (+1: as the seed says, -1: the other way).
+        dirs = [1, -1] if both else [1]
         segments: list[tuple[list[Point], list[SpecialPoint], str]] = []
         dup: str | None = None
         for d in dirs:

@@ -70,11 +70,17 @@ def _state_vector(pt: Point) -> Array:
 
 
 def _cycle_signature(pt: Point) -> Array:
+    """Phase-invariant numbers of a cycle: parameter, period, |drift| and the
+    period-mean observables (``mean_*`` / ``*_mean``). Observables at the
+    phase origin are left out: they depend on where the orbit was cut."""
     vals = [float(pt.p)]
     for key in ("period", "drift"):
         if key in pt.extra:
-            vals.append(float(pt.extra[key]))
+            # A reflection reverses the drift of a relative periodic orbit.
+            vals.append(abs(float(pt.extra[key])) if key == "drift" else float(pt.extra[key]))
     for key in sorted(pt.observables):
+        if not (key.startswith("mean_") or key.endswith("_mean")):
+            continue
         v = pt.observables[key]
         if isinstance(v, int | float | np.floating | np.integer) and not isinstance(v, bool):
             vals.append(float(v))

@@ -57,6 +57,7 @@ def explorer_settings(spec: Spec) -> ExplorerSettings:
         p_range=tuple(c["range"]),
         max_points=c["max_points"],
         dedup_after=e["dedup_after"],
+        branch_kinds=None if e["branches"] is None else tuple(e["branches"]),
     )
 
 
@@ -104,7 +105,9 @@ def run_study(
         root=seed,
         continuer=continuer or ea.engine_continuer,
         settings=explorer_settings(spec),
-        switchers=switchers if switchers is not None else ea.default_switchers(),
+        switchers=switchers if switchers is not None else ea.default_switchers(
+            branch_kinds=None if spec.explorer["branches"] is None
+            else tuple(spec.explorer["branches"])),
         continuation_settings=ea.engine_settings(spec),
         store=store,
         symmetries=getattr(info.model, "symmetries", None),

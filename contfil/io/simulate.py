@@ -34,6 +34,22 @@ class SimulationResult:
         return [f"{k}: {v}" for k, v in self.summary.items()]
 
 
+def _savez(path: Path, **arrays: Any) -> None:
+    """``np.savez`` via a temporary file and an atomic rename."""
+    import os
+
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as fh:
+        np.savez(fh, **arrays)
+    os.replace(tmp, path)
+
+
+def _save_png(fig: Any, path: Path) -> Path:
+    from contfil.plot.diagrams import _save
+
+    return _save(fig, path)
+
+
 def _initial_state(model: Any, params: np.ndarray, amp: float, seed: int) -> np.ndarray:
     u = np.asarray(model.initial_state(params), dtype=float)
     rng = np.random.default_rng(seed)
@@ -59,7 +75,8 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     n_steps = max(1, int(np.ceil(sim["t_end"] / sim["dt"] - 1e-9)))
-    every = max(1, n_steps // (sim["frames"] - 1))
+    # States are recorded finely (the tip path), shapes drawn at `frames` times.
+    every = max(1, n_steps // 2000)
     t0 = time.perf_counter()
     files: list[Path] = []
     if spec.scene is not None:
@@ -69,8 +86,9 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
         traj = trajectory(model, u0, params, sim["t_end"], steps=n_steps, out_every=every)
         t, states = traj.t, traj.states
         wall = time.perf_counter() - t0
-        pos = np.array([model.centreline(u) for u in states])
         obs = {k: np.asarray(v) for k, v in traj.observables.items()}
+        pick = np.unique(np.linspace(0, len(t) - 1, sim["frames"]).round().astype(int))
+        pos = np.array([model.centreline(states[i]) for i in pick])
         summary = {
             "model": model.name,
             "steps": n_steps,
@@ -81,12 +99,12 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
             "max_constraint_residual": traj.max_constraint_residual,
             "max_kinematic_residual": traj.max_kinematic_residual,
         }
-        ax = filament_snapshots(pos, t)
+        ax = filament_snapshots(pos, t[pick], tip_positions=np.asarray(obs["tip"]))
         ax.set_title(f"{model.name}: {sim['t_end']:g} time units")
-        files.append(out / "snapshots.png")
-        ax.figure.savefig(files[-1], dpi=120)
+        files.append(_save_png(ax.figure, out / "snapshots.png"))
         plt.close(ax.figure)
-        np.savez(out / "trajectory.npz", t=t, states=states, positions=pos)
+        _savez(out / "trajectory.npz", t=t, states=states, frame_times=t[pick],
+               positions=pos, tip=np.asarray(obs["tip"]))
     else:
         from scipy.integrate import solve_ivp
 
@@ -108,10 +126,9 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
             ax.plot(t, states[:, i], label=f"u{i}")
         ax.set_xlabel("t")
         ax.legend(fontsize=7, frameon=False)
-        files.append(out / "timeseries.png")
-        fig.savefig(files[-1], dpi=120)
+        files.append(_save_png(fig, out / "timeseries.png"))
         plt.close(fig)
-        np.savez(out / "trajectory.npz", t=t, states=states)
+        _savez(out / "trajectory.npz", t=t, states=states)
     files.append(out / "trajectory.npz")
     files.append(atomic_write_json(out / "summary.json", json.loads(json.dumps(summary))))
     return SimulationResult(t=t, states=states, summary=summary, files=files)

@@ -111,6 +111,9 @@ def _table(key: str, v: Any) -> dict[str, Any]:
 KINDS = ("fold", "branch_point", "hopf", "double_hopf", "cycle_fold", "cycle_branch_point",
          "period_doubling", "torus")
 
+# Kinds of branch the explorer may compute.
+BRANCH_KINDS = ("equilibrium", "rotating_wave", "periodic_orbit", "relative_periodic_orbit")
+
 # key: (checker, default, required, description). The descriptions are the
 # spec reference (the user guide lists the same keys; a test keeps them in step).
 SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
@@ -142,6 +145,8 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "both_directions": (_boolean, True, False, "continue switched branches both ways"),
         "max_branches": (_integer(1), 30, False, "cap on continuation tasks"),
         "dedup_after": (_integer(2), 6, False, "points before the early duplicate test"),
+        "branches": (_string_list, None, False,
+                     f"kinds of branch to compute, from {list(BRANCH_KINDS)} (default: all)"),
     },
     "output": {
         "dir": (_string, None, False, "run directory (default: runs/<spec name>)"),
@@ -254,6 +259,11 @@ def parse_spec(doc: Mapping[str, Any], path: str | Path | None = None, text: str
             if k not in KINDS:
                 raise SpecError(f"explorer.kinds: unknown kind {k!r}; expected some of "
                                 f"{list(KINDS)}")
+    if expl["branches"] is not None:
+        for k in expl["branches"]:
+            if k not in BRANCH_KINDS:
+                raise SpecError(f"explorer.branches: unknown branch kind {k!r}; expected some "
+                                f"of {list(BRANCH_KINDS)}")
     out = _check_table("output", doc.get("output", {}))
     sim = _check_table("simulate", doc.get("simulate", {}))
     return Spec(continuation=cont, explorer=expl, output=out, simulate=sim, scene=scene,

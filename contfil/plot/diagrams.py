@@ -51,7 +51,9 @@ def default_observable(graph: BranchGraph) -> str:
 def _values(points: list[Any], observable: str) -> NDArray[np.float64]:
     out = np.empty(len(points))
     for i, pt in enumerate(points):
-        v = pt.observables.get(observable)
+        # Cycles: the period mean when the engine provides it (the paper's
+        # ordinate), else the value at the phase origin.
+        v = pt.observables.get(f"mean_{observable}", pt.observables.get(observable))
         if v is None and observable == "norm":
             v = float(np.linalg.norm(pt.u))
         out[i] = np.nan if v is None or np.ndim(v) != 0 else float(v)
@@ -118,7 +120,13 @@ def bifurcation_diagram(
     ax.set_xlabel(param)
     ax.set_ylabel(obs.replace("_", " "))
     if legend and seen_kinds:
-        ax.legend(fontsize=8, frameon=False)
+        from matplotlib.lines import Line2D
+
+        handles, labels = ax.get_legend_handles_labels()
+        handles += [Line2D([], [], color="k", ls="-", lw=1.2),
+                    Line2D([], [], color="k", ls="--", lw=1.2)]
+        labels += ["stable", "unstable"]
+        ax.legend(handles, labels, fontsize=8, frameon=False)
     return ax
 
 
@@ -142,6 +150,7 @@ def eigenvalue_plot(
     ax_re, ax_im = axes
     ids = branches or list(g.branches)
     param = "p"
+    lead: list[float] = []  # real parts of the two leading values, for the y-range
     for bid in ids:
         br = g.branch(bid)
         param = br.param
@@ -164,6 +173,7 @@ def eigenvalue_plot(
         if not rows:
             continue
         E = np.array(rows)
+        lead.extend(E[:, : min(2, n)].real[np.isfinite(E[:, : min(2, n)].real)].tolist())
         ps = br.parameter_values()
         colour = _KIND_COLOURS.get(br.kind, "tab:gray")
         for k in range(n):
@@ -176,6 +186,12 @@ def eigenvalue_plot(
                 ax.axvline(sp.point.p, color="k", lw=0.6, ls=":")
             ax_re.annotate(g.g.nodes[sid]["label"], (sp.point.p, 0), fontsize=7,
                            xytext=(2, 2), textcoords="offset points")
+    if lead:
+        # Zoom on the leading values (where stability is decided); strongly
+        # damped ones further down are clipped rather than flattening the plot.
+        lo, hi = min(min(lead), 0.0), max(max(lead), 0.0)
+        pad = 0.1 * (hi - lo or 1.0)
+        ax_re.set_ylim(lo - pad, hi + pad)
     ax_re.axhline(0.0, color="k", lw=0.6)
     ax_re.set_ylabel("Re λ  (cycles: log|μ|)")
     ax_im.set_ylabel("Im λ  (cycles: arg μ)")
@@ -192,6 +208,7 @@ def filament_snapshots(
     shadow: bool = True,
     tip_path: bool = True,
     cmap: str = "viridis",
+    tip_positions: NDArray[np.float64] | None = None,
 ) -> Axes:
     """Filament centrelines in 3D coloured by time, with shadows and the tip path.
 
@@ -208,6 +225,9 @@ def filament_snapshots(
         Draw each shape's projection on the base plane ``z = z_min`` in grey.
     tip_path:
         Draw the path of the free end over all times.
+    tip_positions:
+        ``(m, 3)`` tip positions sampled more finely than the snapshots
+        (e.g. every time step); default: the last point of each snapshot.
     """
     X = np.asarray(positions, dtype=float)
     if X.ndim != 3 or X.shape[2] != 3:
@@ -229,9 +249,10 @@ def filament_snapshots(
             ax.plot(X[k, :, 0], X[k, :, 1], np.full(X.shape[1], z0), color="0.6", lw=0.8,
                     alpha=0.5)
     if tip_path:
-        ax.plot(X[:, -1, 0], X[:, -1, 1], X[:, -1, 2], color="k", lw=0.8, ls="--")
+        tp = X[:, -1, :] if tip_positions is None else np.asarray(tip_positions, dtype=float)
+        ax.plot(tp[:, 0], tp[:, 1], tp[:, 2], color="k", lw=0.8, ls="--")
         if shadow:
-            ax.plot(X[:, -1, 0], X[:, -1, 1], np.full(nt, z0), color="0.3", lw=0.6, ls=":")
+            ax.plot(tp[:, 0], tp[:, 1], np.full(len(tp), z0), color="0.3", lw=0.6, ls=":")
     r = float(np.max(np.abs(X[..., :2]))) or 1.0
     ax.set_xlim(-r, r)
     ax.set_ylim(-r, r)

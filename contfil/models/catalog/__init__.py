@@ -5,7 +5,8 @@ exact answers). Cycle systems live in ``cycles_*.py`` modules.
 """
 
 from contfil.models.catalog.bratu import bratu, bratu_fold_exact, bratu_solution
-from contfil.models.catalog.brusselator import brusselator
+from contfil.models.catalog.brusselator import brusselator, brusselator_1d
+from contfil.models.catalog.chafee_infante import chafee_infante
 from contfil.models.catalog.normal_forms import (
     CatalogEntry,
     hopf_2d,
@@ -22,6 +23,8 @@ __all__ = [
     "bratu_fold_exact",
     "bratu_solution",
     "brusselator",
+    "brusselator_1d",
+    "chafee_infante",
     "hopf_2d",
     "o2_hopf",
     "pitchfork",

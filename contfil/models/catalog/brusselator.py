@@ -8,6 +8,7 @@ Equilibrium ``(A, B/A)``; Jacobian ``[[B - 1, A^2], [-B, -A^2]]`` with trace
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from contfil.models.catalog.normal_forms import CatalogEntry
@@ -48,4 +49,66 @@ def brusselator(A: float = 2.0, B0: float = 1.0) -> CatalogEntry:
             "equilibrium": lambda B: np.array([A, B / A]),
             "node_focus": sorted([(1.0 - A) ** 2, (1.0 + A) ** 2]),
         },
+    )
+
+
+class Brusselator1D(FunctionModel):
+    """Brusselator with diffusion on a periodic 1-D grid of ``N`` nodes::
+
+        x_t = A - (B + 1) x + x^2 y + d x_ss,   y_t = B x - x^2 y + d y_ss
+
+    State ``u = (x_1..x_N, y_1..y_N)``; provides ``jacobian`` and
+    ``jacobian_sparse``. With equal diffusivities the homogeneous state
+    ``(A, B/A)`` has modal Jacobians ``J_0 - d q_k I``, ``q_k = (4/h^2)
+    sin^2(pi k / N)``: every mode is a shifted copy of the ODE's, so the
+    uniform mode (``q_0 = 0``) loses stability first, at exactly
+    ``B = 1 + A^2`` with ``omega = A``, and no Turing instability interferes.
+    """
+
+    def __init__(self, N: int = 50, A: float = 2.0, d: float = 0.1, B0: float = 1.0) -> None:
+        self.N = int(N)
+        self.h = 1.0 / N
+        e = np.ones(N)
+        Lap = sp.diags([e[:-1], -2 * e, e[:-1]], [-1, 0, 1], format="lil")
+        Lap[0, N - 1] = 1.0
+        Lap[N - 1, 0] = 1.0
+        self._D = (d / self.h**2) * sp.csr_matrix(Lap)
+        D = self._D
+
+        def f(u: Array, p: Array) -> Array:
+            x, y = u[:N], u[N:]
+            a, b = p
+            return np.concatenate([a - (b + 1) * x + x * x * y + D @ x, b * x - x * x * y + D @ y])
+
+        super().__init__(
+            f,
+            2 * N,
+            {"A": A, "B": B0},
+            name=f"brusselator1d_N{N}",
+            jacobian=lambda u, p: self.jacobian_sparse(u, p).toarray(),
+            u0=np.concatenate([A * e, (B0 / A) * e]),
+            observables=lambda u, p: {"x_mean": float(np.mean(u[:N]))},
+        )
+
+    def jacobian_sparse(self, u: Array, p: Array) -> sp.csr_matrix:
+        """Block Jacobian ``[[diag(2xy - B - 1) + D, diag(x^2)],
+        [diag(B - 2xy), diag(-x^2) + D]]``."""
+        N = self.N
+        x, y = u[:N], u[N:]
+        b = p[1]
+        return sp.bmat(
+            [
+                [sp.diags(-(b + 1) + 2 * x * y) + self._D, sp.diags(x * x)],
+                [sp.diags(b - 2 * x * y), sp.diags(-x * x) + self._D],
+            ],
+            format="csr",
+        )
+
+
+def brusselator_1d(N: int = 50, A: float = 2.0, d: float = 0.1, B0: float = 1.0) -> CatalogEntry:
+    """Periodic 1-D Brusselator continued in ``B``; ``exact["hopf"] = 1 + A^2``,
+    ``exact["omega"] = A`` (the uniform mode)."""
+    m = Brusselator1D(N, A, d, B0)
+    return CatalogEntry(
+        m, "B", m.initial_state(m.default_params()), B0, {"hopf": 1.0 + A * A, "omega": A}
     )

@@ -79,7 +79,9 @@ def stuart_landau(
     )
 
 
-def subcritical_stuart_landau(mu: float = -0.1, omega: float = 1.0, b: float = 0.0) -> FunctionModel:
+def subcritical_stuart_landau(
+    mu: float = -0.1, omega: float = 1.0, b: float = 0.0
+) -> FunctionModel:
     """``ṙ = r(μ + r² - r⁴)``: subcritical Hopf at μ = 0, fold of cycles at μ = -1/4."""
     return stuart_landau(mu, omega, a=1.0, b=b, c=-1.0)
 
@@ -167,3 +169,35 @@ def exact_multipliers_with_modes(rates: np.ndarray, pairs: np.ndarray | None, mu
             vals += [np.exp((a + 1j * b) * T), np.exp((a - 1j * b) * T)]
     v = np.asarray(vals, dtype=complex)
     return v[np.lexsort((-v.imag, -np.abs(v)))]
+
+
+def two_oscillators(mu1: float = 0.5, omega1: float = 0.7, mu2: float = 0.3,
+                    omega2: float = 1.0) -> FunctionModel:
+    """Two uncoupled supercritical Stuart–Landau oscillators; only the first is
+    acted on by the declared rotation symmetry (generator ``J2 ⊕ 0``).
+
+    Its attractor is a genuine relative periodic orbit: in the frame rotating
+    with the first oscillator (speed ``ω1``) the state repeats after
+    ``T = 2π/ω2``, so ``exp(θL) φ_T(u) = u`` with drift ``θ = -ω1 T`` (mod 2π),
+    amplitudes ``√μ1, √μ2``; multipliers ``1, 1`` (time shift, rotation),
+    ``exp(-2μ1 T)``, ``exp(-2μ2 T)``.
+    """
+
+    def f(u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        a = sl_rhs(u[:2], np.array([p[0], p[1], -1.0, 0.0, 0.0]))
+        b = sl_rhs(u[2:], np.array([p[2], p[3], -1.0, 0.0, 0.0]))
+        return np.concatenate([a, b])
+
+    def jac(u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        J = np.zeros((4, 4))
+        J[:2, :2] = sl_jacobian(u[:2], np.array([p[0], p[1], -1.0, 0.0, 0.0]))
+        J[2:, 2:] = sl_jacobian(u[2:], np.array([p[2], p[3], -1.0, 0.0, 0.0]))
+        return J
+
+    L = np.zeros((4, 4))
+    L[:2, :2] = J2
+    return FunctionModel(
+        f, 4, {"mu1": mu1, "omega1": omega1, "mu2": mu2, "omega2": omega2},
+        name="two_oscillators", jacobian=jac,
+        symmetries=Symmetries(continuous=[ContinuousSymmetry("rotation_1", L)]),
+    )

@@ -40,13 +40,18 @@ MAXITER = 1
 STALL = 2
 NONFINITE = 3
 
-STATUS_NAMES = {OK: "converged", MAXITER: "max_iter reached", STALL: "stalled",
-                NONFINITE: "non-finite residual"}
+STATUS_NAMES = {
+    OK: "converged",
+    MAXITER: "max_iter reached",
+    STALL: "stalled",
+    NONFINITE: "non-finite residual",
+}
 
 
 @njit(cache=True)
-def inverse_update(H: np.ndarray, s: np.ndarray, y: np.ndarray,
-                   Hy: np.ndarray, sH: np.ndarray) -> bool:
+def inverse_update(
+    H: np.ndarray, s: np.ndarray, y: np.ndarray, Hy: np.ndarray, sH: np.ndarray
+) -> bool:
     """Rank-one good-Broyden update of the inverse Jacobian ``H`` in place.
 
     ``Hy`` and ``sH`` are work vectors of length ``n``. Returns False (and
@@ -54,7 +59,17 @@ def inverse_update(H: np.ndarray, s: np.ndarray, y: np.ndarray,
     which signals that the secant information is degenerate.
     """
     n = s.shape[0]
-    Hy[:] = H @ y
+    # one pass over H for both H y and s^T H (row-major friendly)
+    for j in range(n):
+        sH[j] = 0.0
+    for i in range(n):
+        acc = 0.0
+        si = s[i]
+        for j in range(n):
+            hij = H[i, j]
+            acc += hij * y[j]
+            sH[j] += si * hij
+        Hy[i] = acc
     den = 0.0
     snorm = 0.0
     hynorm = 0.0
@@ -65,7 +80,6 @@ def inverse_update(H: np.ndarray, s: np.ndarray, y: np.ndarray,
     # s and H y (nearly) orthogonal: the update would blow H up; skip it.
     if not np.abs(den) > 1e-12 * np.sqrt(snorm * hynorm):
         return False
-    sH[:] = s @ H
     for i in range(n):
         c = (s[i] - Hy[i]) / den
         for j in range(n):

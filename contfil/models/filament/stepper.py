@@ -34,13 +34,26 @@ kernels, whose out-of-plane components vanish on planar states.)
 
 Solver: inverse ("good") Broyden, see :mod:`contfil.models.filament.broyden`,
 started from the linear extrapolation ``2 z^k - z^{k-1}`` of increments and
-loads, with ``H0 = J0^{-1}`` computed once per step from an analytic
-approximate Jacobian (self-mobilities only, see
-:func:`~contfil.models.filament.kernels.bdf2_solver.approx_jacobian`);
-``J0`` is re-evaluated at the current iterate if the residual stops halving
-(at most ``max_refresh`` times). Convergence: infinity norm of the scaled
+loads. ``H0 = J0^{-1}`` comes from an analytic approximate Jacobian
+(:func:`~contfil.models.filament.kernels.bdf2_solver.approx_jacobian`):
+
+- ``jacobian="self"``: self-mobilities only, the paper's choice. With RPY
+  its chord map is not a contraction (interactions are O(1) at ``dL =
+  2.2a``), and Broyden needs ~20 iterations per step;
+- ``jacobian="full"`` (default): the scene's mobility matrix and the
+  squirming interactions frozen at the predictor; ~3 iterations per step
+  when rebuilt every step.
+
+``reuse=False`` builds and inverts ``J0`` every step (the paper's form);
+``reuse=True`` (default) carries the Broyden-updated inverse over to the
+next step and rebuilds it only after a step that needed more than
+``reuse_limit`` iterations or stalled: ~5 iterations per step and no
+``O(n^3)`` work on most steps (see docs/performance.md). Within a step,
+``J0`` is rebuilt at the current iterate if the residual stops halving (at
+most ``max_refresh`` times). Convergence: infinity norm of the scaled
 residual (position rows in units of ``dL``, orientation rows in radians)
-``<= tol`` (1e-12 by default, the paper's value).
+``<= tol`` (1e-12 by default, the paper's value); the converged step does
+not depend on these choices beyond that tolerance.
 
 A failed step raises :class:`~contfil.errors.ConvergenceError` or
 :class:`~contfil.errors.NonFiniteError` naming the step, the time and the
@@ -109,9 +122,20 @@ class FilamentPhysics:
         elif scene.actuation == "squirmer":
             B1 = s * scene.KB / (scene.eta * scene.L**3)
             wsf = w
-        return cls(N=scene.N, dL=scene.dL, a=scene.a, eta=scene.eta, KB=scene.KB,
-                   KT=scene.KT, hydro=scene.hydrodynamics, f=f, B1=B1, wff=wff, wsf=wsf,
-                   planar=scene.planar)
+        return cls(
+            N=scene.N,
+            dL=scene.dL,
+            a=scene.a,
+            eta=scene.eta,
+            KB=scene.KB,
+            KT=scene.KT,
+            hydro=scene.hydrodynamics,
+            f=f,
+            B1=B1,
+            wff=wff,
+            wsf=wsf,
+            planar=scene.planar,
+        )
 
     def phys_array(self) -> Array:
         return np.array([self.dL, self.a, self.eta, self.KB, self.KT, self.f, self.B1])
@@ -127,15 +151,15 @@ def _maps(N: int, planar: bool) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     if not planar:
         idx = np.arange(6 * N, dtype=np.int64)
         return idx, idx.copy()
-    z: list[int] = [3 * (m - 1) + 1 for m in range(1, N)]          # u_y
+    z: list[int] = [3 * (m - 1) + 1 for m in range(1, N)]  # u_y
     oL = 3 * (N - 1)
-    for j in range(N - 1):                                           # Lam_x, Lam_z
+    for j in range(N - 1):  # Lam_x, Lam_z
         z += [oL + 3 * j, oL + 3 * j + 2]
-    z += [6 * (N - 1), 6 * (N - 1) + 2, 6 * N - 2]                  # Fc_x, Fc_z, Tc_y
+    z += [6 * (N - 1), 6 * (N - 1) + 2, 6 * N - 2]  # Fc_x, Fc_z, Tc_y
     r: list[int] = []
-    for n in range(N):                                               # x, z positions
+    for n in range(N):  # x, z positions
         r += [3 * n, 3 * n + 2]
-    r += [3 * N + 3 * n + 1 for n in range(N)]                       # e2 rotations
+    r += [3 * N + 3 * n + 1 for n in range(N)]  # e2 rotations
     return np.array(z, dtype=np.int64), np.array(r, dtype=np.int64)
 
 
@@ -187,9 +211,13 @@ class StepDiagnostics:
 
     @classmethod
     def from_diag(cls, d: Array) -> StepDiagnostics:
-        return cls(d[:, _k.D_ITERS].astype(int), d[:, _k.D_RES].copy(),
-                   d[:, _k.D_CONSTR].copy(), d[:, _k.D_KIN].copy(),
-                   d[:, _k.D_REFRESH].astype(int))
+        return cls(
+            d[:, _k.D_ITERS].astype(int),
+            d[:, _k.D_RES].copy(),
+            d[:, _k.D_CONSTR].copy(),
+            d[:, _k.D_KIN].copy(),
+            d[:, _k.D_REFRESH].astype(int),
+        )
 
 
 class BDF2Stepper:
@@ -229,10 +257,19 @@ class BDF2Stepper:
     >>> st.reset(U0); U1 = st.step(10)                          # doctest: +SKIP
     """
 
-    def __init__(self, model_or_scene: Any, dt: float, tol: float = 1e-12,
-                 max_iter: int = 60, max_refresh: int = 3, p: Array | None = None,
-                 strength: float | None = None, jacobian: str = "full",
-                 reuse: bool = True, reuse_limit: int = 8) -> None:
+    def __init__(
+        self,
+        model_or_scene: Any,
+        dt: float,
+        tol: float = 1e-12,
+        max_iter: int = 60,
+        max_refresh: int = 3,
+        p: Array | None = None,
+        strength: float | None = None,
+        jacobian: str = "full",
+        reuse: bool = True,
+        reuse_limit: int = 8,
+    ) -> None:
         self.scene = _scene_of(model_or_scene)
         if strength is None:
             strength = _strength_from_params(model_or_scene, self.scene, p)
@@ -251,8 +288,10 @@ class BDF2Stepper:
             raise ValueError(f"BDF2Stepper: jacobian must be 'self' or 'full', got {jacobian!r}")
         hydro = 1 if self.phys.hydro == "rpy" else 0
         jmode = 1 if jacobian == "full" else 0
-        self._opts = np.array([hydro, jmode, int(bool(reuse)), self.max_iter,
-                               self.max_refresh, int(reuse_limit)], dtype=np.int64)
+        self._opts = np.array(
+            [hydro, jmode, int(bool(reuse)), self.max_iter, self.max_refresh, int(reuse_limit)],
+            dtype=np.int64,
+        )
         self._physarr = self.phys.phys_array()
         self._info = np.zeros(4)
         nz = self._zmap.shape[0]
@@ -274,12 +313,16 @@ class BDF2Stepper:
         """Start from state ``u`` (planar ``phi`` or 3D flat ``U``) at time ``t0``."""
         u = np.asarray(u, dtype=float)
         if u.shape != (self.dim,):
-            raise ValueError(f"BDF2Stepper.reset: state has shape {u.shape}, "
-                             f"expected ({self.dim},) for this scene")
+            raise ValueError(
+                f"BDF2Stepper.reset: state has shape {u.shape}, "
+                f"expected ({self.dim},) for this scene"
+            )
         if not np.all(np.isfinite(u)):
             bad = np.flatnonzero(~np.isfinite(u))
-            raise NonFiniteError(f"BDF2Stepper.reset: initial state has non-finite entries "
-                                 f"at indices {bad[:10].tolist()}")
+            raise NonFiniteError(
+                f"BDF2Stepper.reset: initial state has non-finite entries "
+                f"at indices {bad[:10].tolist()}"
+            )
         U = embed_planar(u) if self.phys.planar else u
         self._q[:] = frames_from_state(U)
         self._x[:] = positions(tangents(self._q), self.phys.dL)
@@ -312,8 +355,11 @@ class BDF2Stepper:
         """(Lam (N-1, 3), Fc, Tc) of the last step (zeros before the first)."""
         N = self.phys.N
         zp = self._zp
-        return (zp[3 * (N - 1):6 * (N - 1)].reshape(N - 1, 3).copy(),
-                zp[6 * (N - 1):6 * N - 3].copy(), zp[6 * N - 3:].copy())
+        return (
+            zp[3 * (N - 1) : 6 * (N - 1)].reshape(N - 1, 3).copy(),
+            zp[6 * (N - 1) : 6 * N - 3].copy(),
+            zp[6 * N - 3 :].copy(),
+        )
 
     def _advance(self, n: int, rec_every: int = 0) -> tuple[StepDiagnostics, Array]:
         if not self._ready:
@@ -322,20 +368,40 @@ class BDF2Stepper:
         nrec = n // rec_every if rec_every > 0 else 0
         rec_q = np.empty((max(nrec, 1), N, 4))
         diag = np.zeros((max(n, 1), _k.N_DIAG))
-        done = _k.advance(n, self.k, self.dt, self._q, self._x, self._xm1, self._zp,
-                          self._zpm1, self._H, self._physarr, self.phys.wff, self.phys.wsf,
-                          self._opts, self._zmap, self._rmap, self.tol, rec_every, rec_q,
-                          diag, self._info)
+        done = _k.advance(
+            n,
+            self.k,
+            self.dt,
+            self._q,
+            self._x,
+            self._xm1,
+            self._zp,
+            self._zpm1,
+            self._H,
+            self._physarr,
+            self.phys.wff,
+            self.phys.wsf,
+            self._opts,
+            self._zmap,
+            self._rmap,
+            self.tol,
+            rec_every,
+            rec_q,
+            diag,
+            self._info,
+        )
         self.k += done
         self.time += done * self.dt
         if done < n:
             status = int(self._info[0])
             kfail = int(self._info[1])
             res = float(self._info[2])
-            msg = (f"BDF2 step {kfail} (t = {kfail * self.dt:.6g} -> "
-                   f"{(kfail + 1) * self.dt:.6g}, dt = {self.dt:.3g}): Broyden "
-                   f"{_br.STATUS_NAMES.get(status, status)}, scaled residual |R|_inf = "
-                   f"{res:.3e} (tol {self.tol:.1e})")
+            msg = (
+                f"BDF2 step {kfail} (t = {kfail * self.dt:.6g} -> "
+                f"{(kfail + 1) * self.dt:.6g}, dt = {self.dt:.3g}): Broyden "
+                f"{_br.STATUS_NAMES.get(status, status)}, scaled residual |R|_inf = "
+                f"{res:.3e} (tol {self.tol:.1e})"
+            )
             self._ready = False  # state is the last accepted step; force a reset
             if status == _br.NONFINITE:
                 raise NonFiniteError(msg)
@@ -365,8 +431,17 @@ def _n_steps(T: float, steps: int | None, dt: float | None) -> int:
     return max(1, math.ceil(T / dt - 1e-9))
 
 
-def flow(model: Any, u: Array, p: Array | None, T: float, steps: int | None = None,
-         dt: float | None = None, *, tol: float = 1e-12, **stepper_kw: Any) -> Array:
+def flow(
+    model: Any,
+    u: Array,
+    p: Array | None,
+    T: float,
+    steps: int | None = None,
+    dt: float | None = None,
+    *,
+    tol: float = 1e-12,
+    **stepper_kw: Any,
+) -> Array:
     """The flow map ``phi_T(u)`` by ``n`` equal BDF2 steps (first: backward Euler).
 
     ``n = steps`` or ``ceil(T/dt)``, ``dt_eff = T/n``; with ``steps`` fixed
@@ -411,14 +486,26 @@ def _frame_observables(q: Array, dL: float, KB: float) -> dict[str, Any]:
     # bending energy from the angles between neighbouring tangents
     c = np.clip(np.einsum("ij,ij->i", t[1:], t[:-1]), -1.0, 1.0)
     ang = np.arccos(c)
-    return {"tip": tip, "tip_angle": float(np.arctan2(tip[1], tip[0])),
-            "tip_height": float(tip[2]),
-            "bending_energy": float(0.5 * KB * np.sum(ang**2) / dL)}
+    return {
+        "tip": tip,
+        "tip_angle": float(np.arctan2(tip[1], tip[0])),
+        "tip_height": float(tip[2]),
+        "bending_energy": float(0.5 * KB * np.sum(ang**2) / dL),
+    }
 
 
-def trajectory(model: Any, u: Array, p: Array | None, T: float, steps: int | None = None,
-               dt: float | None = None, *, out_every: int = 1, tol: float = 1e-12,
-               **stepper_kw: Any) -> Trajectory:
+def trajectory(
+    model: Any,
+    u: Array,
+    p: Array | None,
+    T: float,
+    steps: int | None = None,
+    dt: float | None = None,
+    *,
+    out_every: int = 1,
+    tol: float = 1e-12,
+    **stepper_kw: Any,
+) -> Trajectory:
     """Integrate like :func:`flow` and record states every ``out_every`` steps.
 
     Returns a :class:`Trajectory`: times (initial time included), states
@@ -446,9 +533,13 @@ def trajectory(model: Any, u: Array, p: Array | None, T: float, steps: int | Non
         states.append(project_planar(U) if st.phys.planar else U)
         for key, val in _frame_observables(qq, st.phys.dL, st.phys.KB).items():
             obs.setdefault(key, []).append(val)
-    return Trajectory(t=times, states=np.array(states),
-                      observables={k: np.array(v) for k, v in obs.items()},
-                      diagnostics=diag, dt=st.dt)
+    return Trajectory(
+        t=times,
+        states=np.array(states),
+        observables={k: np.array(v) for k, v in obs.items()},
+        diagnostics=diag,
+        dt=st.dt,
+    )
 
 
 def attach_flow(model: Any, *, steps_per_unit: float | None = None) -> Any:
@@ -458,8 +549,9 @@ def attach_flow(model: Any, *, steps_per_unit: float | None = None) -> Any:
     ``ceil(T * steps_per_unit)`` when neither ``steps`` nor ``dt`` is given.
     """
 
-    def _flow(u: Array, p: Array, T: float, steps: int | None = None,
-              dt: float | None = None, **kw: Any) -> Array:
+    def _flow(
+        u: Array, p: Array, T: float, steps: int | None = None, dt: float | None = None, **kw: Any
+    ) -> Array:
         if steps is None and dt is None:
             if steps_per_unit is None:
                 raise ValueError("model.flow: give steps or dt")
@@ -485,7 +577,15 @@ def observables_of_state(scene: Scene, u: Array) -> dict[str, Any]:
 
 
 __all__: Sequence[str] = (
-    "BDF2Stepper", "FilamentPhysics", "StepDiagnostics", "Trajectory", "attach_flow",
-    "embed_planar", "flow", "observables_of_state", "project_planar", "rotate_state_z",
+    "BDF2Stepper",
+    "FilamentPhysics",
+    "StepDiagnostics",
+    "Trajectory",
+    "attach_flow",
+    "embed_planar",
+    "flow",
+    "observables_of_state",
+    "project_planar",
+    "rotate_state_z",
     "trajectory",
 )

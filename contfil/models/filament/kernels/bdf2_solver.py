@@ -38,11 +38,11 @@ import numpy as np
 from numba import njit
 
 from ..broyden import MAXITER, NONFINITE, OK, STALL, inverse_update, max_abs
-from .elastic import elastic_torques
+from .elastic import elastic_moments, elastic_torques
 from .forces import follower_forces, segment_loads
 from .geometry import positions, tangents
-from .quaternion import dexp_inv, qexp, qmul
-from .rpy import rpy_mobility
+from .quaternion import dexp, dexp_inv, qexp, qmul
+from .rpy import _pair_coeffs, rpy_mobility
 from .squirmer import squirmer_matrix, squirmer_velocity
 
 # phys layout
@@ -70,6 +70,70 @@ def _frames(zf: np.ndarray, qk: np.ndarray, q: np.ndarray) -> None:
 
 
 @njit(cache=True)
+def rpy_apply(
+    X: np.ndarray,
+    a: float,
+    eta: float,
+    F: np.ndarray,
+    T: np.ndarray,
+    V: np.ndarray,
+    Om: np.ndarray,
+) -> None:
+    """``[V; Om] = M_RPY(X) [F; T]`` without forming the ``6N x 6N`` matrix.
+
+    Same pair coefficients as :func:`rpy.rpy_mobility` (shared
+    ``_pair_coeffs``); the residual calls this in every Broyden iteration,
+    where assembling the dense matrix cost more than the rest of the
+    residual together.
+    """
+    N = X.shape[0]
+    mt = 1.0 / (6.0 * np.pi * eta * a)
+    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    for n in range(N):
+        for k in range(3):
+            V[n, k] = mt * F[n, k]
+            Om[n, k] = mr * T[n, k]
+    for i in range(N):
+        for j in range(i + 1, N):
+            r0 = X[i, 0] - X[j, 0]
+            r1 = X[i, 1] - X[j, 1]
+            r2 = X[i, 2] - X[j, 2]
+            r = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+            h0, h1, h2 = r0 / r, r1 / r, r2 / r
+            ttI, ttR, rrI, rrR, cp = _pair_coeffs(r, a, eta)
+            hFj = h0 * F[j, 0] + h1 * F[j, 1] + h2 * F[j, 2]
+            hFi = h0 * F[i, 0] + h1 * F[i, 1] + h2 * F[i, 2]
+            hTj = h0 * T[j, 0] + h1 * T[j, 1] + h2 * T[j, 2]
+            hTi = h0 * T[i, 0] + h1 * T[i, 1] + h2 * T[i, 2]
+            # translation-translation and rotation-rotation (symmetric pairs)
+            V[i, 0] += ttI * F[j, 0] + ttR * h0 * hFj
+            V[i, 1] += ttI * F[j, 1] + ttR * h1 * hFj
+            V[i, 2] += ttI * F[j, 2] + ttR * h2 * hFj
+            V[j, 0] += ttI * F[i, 0] + ttR * h0 * hFi
+            V[j, 1] += ttI * F[i, 1] + ttR * h1 * hFi
+            V[j, 2] += ttI * F[i, 2] + ttR * h2 * hFi
+            Om[i, 0] += rrI * T[j, 0] + rrR * h0 * hTj
+            Om[i, 1] += rrI * T[j, 1] + rrR * h1 * hTj
+            Om[i, 2] += rrI * T[j, 2] + rrR * h2 * hTj
+            Om[j, 0] += rrI * T[i, 0] + rrR * h0 * hTi
+            Om[j, 1] += rrI * T[i, 1] + rrR * h1 * hTi
+            Om[j, 2] += rrI * T[i, 2] + rrR * h2 * hTi
+            # coupling: V_i += cp T_j x rh, Om_i += cp F_j x rh; (j, i): rh -> -rh
+            V[i, 0] += cp * (T[j, 1] * h2 - T[j, 2] * h1)
+            V[i, 1] += cp * (T[j, 2] * h0 - T[j, 0] * h2)
+            V[i, 2] += cp * (T[j, 0] * h1 - T[j, 1] * h0)
+            Om[i, 0] += cp * (F[j, 1] * h2 - F[j, 2] * h1)
+            Om[i, 1] += cp * (F[j, 2] * h0 - F[j, 0] * h2)
+            Om[i, 2] += cp * (F[j, 0] * h1 - F[j, 1] * h0)
+            V[j, 0] -= cp * (T[i, 1] * h2 - T[i, 2] * h1)
+            V[j, 1] -= cp * (T[i, 2] * h0 - T[i, 0] * h2)
+            V[j, 2] -= cp * (T[i, 0] * h1 - T[i, 1] * h0)
+            Om[j, 0] -= cp * (F[i, 1] * h2 - F[i, 2] * h1)
+            Om[j, 1] -= cp * (F[i, 2] * h0 - F[i, 0] * h2)
+            Om[j, 2] -= cp * (F[i, 0] * h1 - F[i, 1] * h0)
+
+
+@njit(cache=True)
 def _velocities(
     q: np.ndarray,
     t: np.ndarray,
@@ -91,17 +155,7 @@ def _velocities(
     V = np.empty((N, 3))
     Om = np.empty((N, 3))
     if hydro == 1:
-        M = rpy_mobility(X, a, eta)
-        FT = np.empty(6 * N)
-        for n in range(N):
-            for k in range(3):
-                FT[3 * n + k] = F[n, k]
-                FT[3 * N + 3 * n + k] = T[n, k]
-        VO = M @ FT
-        for n in range(N):
-            for k in range(3):
-                V[n, k] = VO[3 * n + k]
-                Om[n, k] = VO[3 * N + 3 * n + k]
+        rpy_apply(X, a, eta, F, T, V, Om)
     else:
         mt = 1.0 / (6.0 * np.pi * eta * a)
         mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
@@ -203,6 +257,20 @@ def _skew_into(J: np.ndarray, r0: int, c0: int, v: np.ndarray, fac: float) -> No
 
 
 @njit(cache=True)
+def _dexp_mat(u: np.ndarray) -> np.ndarray:
+    """Matrix of v -> dexp(u, v)."""
+    A = np.empty((3, 3))
+    e = np.zeros(3)
+    for k in range(3):
+        e[:] = 0.0
+        e[k] = 1.0
+        c = dexp(u, e)
+        for i in range(3):
+            A[i, k] = c[i]
+    return A
+
+
+@njit(cache=True)
 def _dexp_inv_mat(u: np.ndarray) -> np.ndarray:
     """Matrix of v -> dexp_inv(u, v)."""
     A = np.empty((3, 3))
@@ -247,18 +315,19 @@ def approx_jacobian(
     """Approximate Jacobian ``J0 = dR/dz`` (reduced layout) at ``z``.
 
     ``R = [(x(u) - hist)/dL - g dt V/dL ; u - b1 u^k - g dt A(u) Omega]`` with
-    ``[V; Omega] = M G(z) + [Vsf; 0]``. Kept: the exact derivative of the
-    robot-arm positions for small increments (``dt_m = du_m x t_m``), the
-    exact derivatives of the constraint force and torque and of the follower
-    force, the linearised elastic torque ``dM_{n+1/2} = K (du_{n+1} -
-    du_n)/dL`` with ``K = R_n diag(KT, KB, KB) R_n^T``, and the self part of
-    the squirming velocity. Dropped: the configuration dependence of the
-    mobility and of ``A = dexp_inv(u, .)`` (frozen at ``z``). ``jmode = 0``:
-    self-mobilities and self-squirming only (the paper's choice, O(N^2) to
-    build); ``jmode = 1``: the scene's mobility matrix at ``z`` (RPY: one
-    dense ``6N x 6N`` product more) and the full derivative of the squirming
-    velocity (through the tangents and the positions); far fewer Broyden
-    iterations.
+    ``[V; Omega] = M G(z) + [Vsf; 0]``. Exact: the derivative of the
+    robot-arm positions (``dt_m = (dexp(u_m) du_m) x t_m``), of the
+    constraint force and torque, of the follower force and of the clamp
+    terms. Linearised: the joint moment, ``dM = K d(th_{n+1} - th_n)/dL -
+    1/2 [M]x d(th_n + th_{n+1})`` (stiffness ``K = R_n diag(KT, KB, KB)
+    R_n^T / dL`` plus the turn of the joint's mid-frame). Dropped: the
+    configuration dependence of the mobility and of ``A = dexp_inv(u, .)``
+    (both frozen at ``z``). ``jmode = 0``: self-mobilities and
+    self-squirming only (the paper's choice, O(N^2) to build); ``jmode =
+    1``: the scene's mobility matrix at ``z`` (RPY: one dense ``6N x 6N``
+    product more) and the full derivative of the squirming velocity (through
+    the tangents and the positions). Measured against finite differences of
+    the residual (tests): relative error ~1e-3 for ``jmode = 1``.
     """
     N = qk.shape[0]
     g, dt = coef[3], coef[4]
@@ -339,6 +408,18 @@ def approx_jacobian(
             if j < 0 or j > N - 2:
                 continue
             _skew_into(G, RT + 3 * n, oL + 3 * j, tn, 0.5 * dL * sF)
+    # the joint moment turns with the joint's mid-frame: dM = -1/2 [M]x (dth_j + dth_{j+1})
+    Mj = elastic_moments(q, dL, KB, KT)
+    Mv = np.empty(3)
+    for j in range(N - 1):
+        for k in range(3):
+            Mv[k] = Mj[j, k]
+        for m in (j, j + 1):
+            if m < 1:
+                continue
+            # +M_{j+1/2} acts on segment j, -M_{j+1/2} on segment j+1
+            _skew_into(G, RT + 3 * j, 3 * (m - 1), Mv, -0.5)
+            _skew_into(G, RT + 3 * (j + 1), 3 * (m - 1), Mv, 0.5)
     for k in range(3):
         G[k, 6 * (N - 1) + k] += sF
         G[RT + k, 6 * N - 3 + k] += sT
@@ -442,14 +523,29 @@ def approx_jacobian(
                     + A[i, 1] * MG[RT + 3 * n + 1, k]
                     + A[i, 2] * MG[RT + 3 * n + 2, k]
                 )
-        if n >= 1:
-            for i in range(3):
-                J[RT + 3 * n + i, 3 * (n - 1) + i] += 1.0
         for m in range(1, n + 1):
             cc = 1.0 if m < n else 0.5
             for k in range(3):
                 tn[k] = t[m, k]
             _skew_into(J, 3 * n, 3 * (m - 1), tn, -cc)
+    # everything above depends on u_m only through the rotation of frame m,
+    # whose spatial perturbation is dexp(u_m) du_m: right-multiply the u columns
+    blk = np.empty((6 * N, 3))
+    for m in range(1, N):
+        for k in range(3):
+            u[k] = zf[3 * (m - 1) + k]
+        B = _dexp_mat(u)
+        c0 = 3 * (m - 1)
+        for i in range(6 * N):
+            for k in range(3):
+                blk[i, k] = J[i, c0] * B[0, k] + J[i, c0 + 1] * B[1, k] + J[i, c0 + 2] * B[2, k]
+        for i in range(6 * N):
+            for k in range(3):
+                J[i, c0 + k] = blk[i, k]
+    # the explicit u_n of the orientation rows
+    for n in range(1, N):
+        for i in range(3):
+            J[RT + 3 * n + i, 3 * (n - 1) + i] += 1.0
     nz = zmap.shape[0]
     Jr = np.empty((nz, nz))
     for i in range(nz):
@@ -531,8 +627,7 @@ def _solve_step(
         return NONFINITE, 0, res, 0
     builds = 0
     if not have_H and res > tol:
-        if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap,
-                                  scale):
+        if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap, scale):
             return NONFINITE, 0, res, 1
         builds = 1
     it = 0
@@ -541,8 +636,11 @@ def _solve_step(
     while res > tol:
         if it >= max_iter:
             return MAXITER, it, res, builds
-        s[:] = -(H @ r)
         for i in range(nz):
+            acc = 0.0
+            for j in range(nz):
+                acc += H[i, j] * r[j]
+            s[i] = -acc
             z[i] += s[i]
         residual(
             z, rn, qk, xk, xkm1, uk, coef, phys, wff, wsf, hydro, zmap, rmap, scale, q, X, rfull
@@ -555,8 +653,7 @@ def _solve_step(
                 z[i] -= s[i]
             if builds > max_refresh:
                 return NONFINITE, it, resn, builds
-            if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap,
-                                  scale):
+            if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap, scale):
                 return NONFINITE, it, resn, builds
             builds += 1
             since = 0
@@ -574,8 +671,7 @@ def _solve_step(
         if since >= 6:
             if builds > max_refresh:
                 return STALL, it, res, builds
-            if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap,
-                                  scale):
+            if not _fresh_inverse(H, z, qk, coef, phys, wff, wsf, hydro, jmode, zmap, rmap, scale):
                 return NONFINITE, it, res, builds
             builds += 1
             since = 0

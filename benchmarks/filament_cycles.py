@@ -1,0 +1,372 @@
+"""Whirling and beating branches of the four filament models (issue 4, filament part).
+
+For one model (``--model``) from its O(2) double Hopf point:
+
+1. whirling: rotating wave ``f(u) - omega L u = 0`` (co-moving frame),
+   continued in the actuation with the eigenvalues of ``f_u - omega L``; the
+   torus (Neimark-Sacker) point is a complex pair crossing the imaginary
+   axis (engine ``HopfEvent`` on the rotating-wave branch);
+2. one whirling point re-solved by shooting with the BDF2 flow
+   (``rotating_wave_by_shooting``): omega and the Floquet multipliers
+   against ``exp(lambda T)``;
+3. beating: planar periodic orbit by shooting in the planar reduced model
+   (``PeriodicOrbitProblem(subspace="planar_xz")``), Floquet multipliers of
+   the full 3D monodromy at every point; the out-of-plane pitchfork is a
+   real multiplier crossing +1 whose mode leaves the plane
+   (``OutOfPlanePitchforkEvent``, contfil/models/filament/cycles.py);
+4. dt study at the pitchfork (``T/200``, ``T/400``, ``T/800``).
+
+Results go to ``docs/figures/filament_<model>_cycles.json``; ``--plot``
+draws the frequency and mean bending energy figures from the JSON files.
+
+Usage::
+
+    python benchmarks/filament_cycles.py --model tip_ff            # full run
+    python benchmarks/filament_cycles.py --model tip_ff --quick    # smoke run
+    python benchmarks/filament_cycles.py --model tip_ff --part whirling
+    python benchmarks/filament_cycles.py --plot
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from contfil.engine.continuation import Continuation, ContinuationSettings
+from contfil.engine.cycle_events import cycle_events
+from contfil.engine.rotating_wave import rotating_wave_by_shooting
+from contfil.models.filament import FilamentModel
+from contfil.models.filament import stepper as fstepper
+from contfil.models.filament.cycles import (
+    FixedStepFlow,
+    OutOfPlanePitchforkEvent,
+    double_hopf,
+    plane_fraction,
+    solve_beating,
+    solve_whirling,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+FIG = ROOT / "docs" / "figures"
+
+# Bracket of the double Hopf point (from docs/filament-model.md) and safety
+# bounds of the runs; the runs stop earlier once the special point is passed.
+MODELS: dict[str, dict[str, Any]] = {
+    "tip_ff": {"bracket": (30.0, 36.0), "w_pmax": 400.0, "b_pmax": 250.0, "label": "f"},
+    "dis_ff": {"bracket": (3.0, 4.5), "w_pmax": 60.0, "b_pmax": 30.0, "label": "f"},
+    "tip_sf": {"bracket": (220.0, 250.0), "w_pmax": 4000.0, "b_pmax": 2000.0, "label": "b1"},
+    "dis_sf": {"bracket": (55.0, 75.0), "w_pmax": 2500.0, "b_pmax": 1000.0, "label": "b1"},
+}
+
+
+def _c(z: complex) -> list[float]:
+    return [float(np.real(z)), float(np.imag(z))]
+
+
+def whirling(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any],
+             quick: bool) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    ps = dh["p"]
+    pb, x1, p1, info = solve_whirling(model, dh, eps=0.05)
+    first = {"p": p1, "omega": float(x1[-1]), "residual": info["residual"],
+             "side": float(np.sign(p1 - ps)), "amp_coeff": (p1 - ps) / 0.05**2}
+    p_max = 1.5 * ps if quick else cfg["w_pmax"]
+    st = ContinuationSettings(ds=0.01 * ps, ds_max=0.06 * ps, ds_min=1e-6 * ps,
+                              max_points=30 if quick else 400, p_max=p_max)
+    run = Continuation(pb, x1, p1, st)
+    pts, after = [], None
+    for pt in run:
+        nt = ~pt.trivial
+        ev = pt.eigenvalues[nt]
+        k = int(np.flatnonzero(pt.trivial)[0]) if pt.trivial.any() else -1
+        pts.append({
+            "p": pt.p, "omega": pt.extra["omega"], "freq": abs(pt.extra["omega"]) / (2 * np.pi),
+            "E": pt.observables["bending_energy"], "tip_r": pt.observables["tip_r"],
+            "n_unstable": pt.n_unstable, "residual": pt.accuracy.get("residual", np.nan),
+            "lead": [_c(z) for z in ev[:6]],
+            "trivial": _c(pt.eigenvalues[k]) if k >= 0 else None,
+        })
+        if run.branch.special_points and after is None:
+            after = len(pts)
+        # stop a little past the first special point (the torus), keep >= 3 more points
+        if after is not None and len(pts) > after + 3 and pt.p > 1.1 * run.branch.special_points[0].point.p:
+            break
+    specials = []
+    for sp in run.branch.special_points:
+        d = sp.data
+        om = sp.point.extra["omega"]
+        rec = {"kind": sp.kind, "p": sp.point.p, "omega": om, "freq": abs(om) / (2 * np.pi),
+               "E": sp.point.observables.get("bending_energy") if sp.point.observables else None}
+        if "eigenvalue" in d:
+            lam = complex(d["eigenvalue"])
+            T = 2 * np.pi / abs(om)
+            rec.update({"eigenvalue": _c(lam), "freq2_comoving": abs(lam.imag) / (2 * np.pi),
+                        "multiplier": _c(np.exp(lam * T)),
+                        "multiplier_angle": float(np.angle(np.exp(lam * T))),
+                        "bracket": d.get("bracket"), "multiplicity": d.get("multiplicity")})
+        specials.append(rec)
+    return {"first": first, "points": pts, "special": specials, "wall": time.perf_counter() - t0,
+            "rhs_evals": pb.rhs_evals, "x_points": [p.u.tolist() for p in run.branch.points]}
+
+
+def whirling_shooting(model: FilamentModel, wres: dict[str, Any], steps: int,
+                      p_target: float) -> dict[str, Any]:
+    """Re-solve the whirling point nearest ``p_target`` by shooting with BDF2."""
+    t0 = time.perf_counter()
+    pts = wres["points"]
+    k = int(np.argmin([abs(q["p"] - p_target) for q in pts]))
+    q = pts[k]
+    u = np.asarray(wres["x_points"][k])
+    fm = FixedStepFlow(model, steps)
+    params = np.array([q["p"]])
+    out = rotating_wave_by_shooting(fm, u, q["omega"], params, steps=steps, tol=1e-9, nev=8)
+    st = out["stability"]
+    from contfil.engine.rotating_wave import RotatingWaveProblem
+
+    pb = RotatingWaveProblem(model, model.param_names[0], params)
+    xs = np.concatenate([u, [q["omega"]]])
+    ev = pb.stability(xs, q["p"])
+    T = out["period"]
+    mu_rw = np.exp(ev.values[~ev.trivial] * T)
+    mu_rw = mu_rw[np.argsort(-np.abs(mu_rw))]
+    mu_sh = st.values[~st.trivial]
+    # match each shooting multiplier to the nearest co-moving prediction
+    match = [float(np.min(np.abs(mu_rw - z))) for z in mu_sh[:6]]
+    return {"p": q["p"], "steps": steps, "omega_comoving": q["omega"], "omega_shooting": out["omega"],
+            "rel_omega_diff": abs(out["omega"] - q["omega"]) / abs(q["omega"]),
+            "state_diff": float(np.linalg.norm(out["u"] - u) / np.linalg.norm(u)),
+            "newton_residual": out["newton"]["residual"],
+            "multipliers_shooting": [_c(z) for z in mu_sh[:6]],
+            "multipliers_exp_lambda_T": [_c(z) for z in mu_rw[:6]],
+            "multiplier_mismatch": match,
+            "trivial_shooting": [_c(z) for z in st.values[st.trivial]],
+            "floquet_converged": bool(st.info.get("converged")),
+            "floquet_residual": st.residual,
+            "flow_evals": out["flow_evals"], "wall": time.perf_counter() - t0}
+
+
+def _floquet_summary(st: Any) -> dict[str, Any]:
+    vals = np.asarray(st.values)
+    nt = np.flatnonzero(~st.trivial)[:8]
+    return {
+        "multipliers": [_c(vals[k]) for k in nt],
+        "plane_fraction": [plane_fraction(st.vectors[:, k]) for k in nt],
+        "trivial": [_c(z) for z in vals[st.trivial]],
+        "trivial_distance": float(st.info["trivial_info"].get("distance_from_one", np.nan)),
+        "invariance_defect": float(st.info["trivial_info"].get("invariance_defect", np.nan)),
+        "arnoldi_iterations": int(st.info["iterations"]),
+        "converged": bool(st.info["converged"]),
+        "ritz_residual": float(st.residual),
+    }
+
+
+def mean_energy(planar_model: FilamentModel, phi: np.ndarray, p: float, T: float,
+                steps: int) -> float:
+    tr = fstepper.trajectory(planar_model, phi, np.array([p]), T, steps=steps, out_every=1)
+    return float(np.mean([planar_model.bending_energy(s) for s in tr.states[:-1]]))
+
+
+def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick: bool,
+            steps: int) -> dict[str, Any]:
+    t0 = time.perf_counter()
+    ps = dh["p"]
+    fm = FixedStepFlow(model, steps)
+    pb, x1, p1, info = solve_beating(fm, dh, eps=0.05)
+    first = {"p": p1, "T": float(x1[-1]), "residual": info["residual"],
+             "side": float(np.sign(p1 - ps)), "amp_coeff": (p1 - ps) / 0.05**2,
+             "newton_iterations": info["iterations"]}
+    planar = pb.solve_model.base
+    p_max = 1.15 * ps if quick else cfg["b_pmax"]
+    st = ContinuationSettings(ds=0.01 * ps, ds_max=0.05 * ps, ds_min=1e-5 * ps,
+                              max_points=3 if quick else 60, p_max=p_max,
+                              event_tol=1e-4 * ps, event_max_iter=12, newton_max_iter=8)
+    events = [*cycle_events(), OutOfPlanePitchforkEvent()]
+    run = Continuation(pb, x1, p1, st, events=events)
+    pts, after = [], None
+    for pt in run:
+        T = pt.extra["period"]
+        x = np.concatenate([np.asarray(pt.u)[1::3], [T]])  # reduced (phi, T)
+        rec = {"p": pt.p, "T": T, "freq": 1.0 / T, "n_unstable": pt.n_unstable,
+               "residual": pt.accuracy.get("residual", np.nan),
+               "E_mean": mean_energy(planar, x[:-1], pt.p, T, steps),
+               "multipliers": [_c(z) for z in pt.eigenvalues[~pt.trivial][:8]],
+               "trivial": [_c(z) for z in pt.eigenvalues[pt.trivial]],
+               "eig_residual": pt.accuracy.get("eig_residual", np.nan),
+               "wall_point": pt.cost.get("wall_time", np.nan),
+               "flows_planar": pb.solve_model.flow_calls, "flows_3d": pb.model.flow_calls}
+        pts.append(rec)
+        print(f"[beating] {pt.p:10.5g} T={T:.6g} n_unst={pt.n_unstable} "
+              f"mu={np.round(pt.eigenvalues[~pt.trivial][:4], 5)} "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        pf = [sp for sp in run.branch.special_points if sp.kind != "endpoint"]
+        if pf and after is None:
+            after = len(pts)
+        if after is not None and len(pts) > after + 2:
+            break
+    specials = []
+    for sp in run.branch.special_points:
+        d = sp.data
+        rec = {"kind": sp.kind, "event": d.get("event"), "p": sp.point.p,
+               "T": sp.point.extra.get("period"),
+               "freq": 1.0 / sp.point.extra["period"] if "period" in sp.point.extra else None,
+               "multiplier": d.get("multiplier") if np.isscalar(d.get("multiplier")) else None,
+               "plane_fraction": d.get("plane_fraction"), "bracket": d.get("bracket"),
+               "localisation_time": d.get("localisation_time")}
+        if isinstance(d.get("multiplier"), complex):
+            rec["multiplier"] = _c(d["multiplier"])
+        if sp.point.eigenvalues is not None and sp.point.trivial is not None:
+            rec["multipliers"] = [_c(z) for z in sp.point.eigenvalues[~sp.point.trivial][:6]]
+        rec["x"] = np.concatenate([np.asarray(sp.point.u)[1::3], [sp.point.extra.get("period", np.nan)]]).tolist()
+        specials.append(rec)
+    return {"first": first, "points": pts, "special": specials, "steps": steps,
+            "wall": time.perf_counter() - t0, "flows_planar": pb.solve_model.flow_calls,
+            "flows_3d": pb.model.flow_calls, "stop": run.stop_reason}
+
+
+def dt_study(model: FilamentModel, sp: dict[str, Any], steps_list: list[int]) -> list[dict[str, Any]]:
+    """Re-solve the pitchfork orbit at fixed p with other step counts; out-of-plane multiplier."""
+    from contfil.engine.hookstep import newton_hookstep
+    from contfil.engine.shooting import PeriodicOrbitProblem
+
+    out = []
+    x0 = np.asarray(sp["x"])
+    p = sp["p"]
+    for steps in steps_list:
+        t0 = time.perf_counter()
+        fm = FixedStepFlow(model, steps)
+        pb = PeriodicOrbitProblem(fm, model.param_names[0], np.array([p]), subspace="planar_xz")
+        pb.set_reference(x0[:-1], p)
+        x, info = newton_hookstep(lambda z: pb.residual(z, p), x0, jvp=lambda z, v: pb.jvp(z, p, v),
+                                  tol=1e-10)
+        st = pb.stability(x, p)
+        ev = OutOfPlanePitchforkEvent()
+        c, _ = ev._cands(st)
+        mu = float(c[int(np.argmin(np.abs(np.log(c))))]) if c.size else float("nan")
+        out.append({"steps": steps, "T": float(x[-1]), "mu_out_of_plane": mu,
+                    "newton_residual": info["residual"], "floquet": _floquet_summary(st),
+                    "wall": time.perf_counter() - t0})
+        print(f"[dt] steps={steps} T={x[-1]:.8f} mu_oop={mu:.6f}", flush=True)
+    return out
+
+
+def _jsonable(o: Any) -> Any:
+    if isinstance(o, dict):
+        return {k: _jsonable(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_jsonable(v) for v in o]
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return _jsonable(o.tolist())
+    if isinstance(o, complex):
+        return _c(o)
+    return o
+
+
+def run_model(name: str, parts: list[str], quick: bool, steps: int) -> dict[str, Any]:
+    cfg = MODELS[name]
+    path = FIG / f"filament_{name}_cycles{'_quick' if quick else ''}.json"
+    res: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
+    model = FilamentModel(ROOT / "branches" / f"{name}.toml")
+    t0 = time.perf_counter()
+    dh = double_hopf(model, cfg["bracket"])
+    res["double_hopf"] = {"p": dh["p"], "omega": dh["omega"], "re_residual": dh["re_residual"],
+                          "wall": time.perf_counter() - t0}
+    print(f"[{name}] double Hopf {cfg['label']}* = {dh['p']:.6g}, omega = {dh['omega']:.6g}")
+    if "whirling" in parts:
+        w = whirling(model, dh, cfg, quick)
+        res["whirling"] = w
+        for s in w["special"]:
+            print(f"[{name}] whirling {s['kind']} at {cfg['label']} = {s['p']:.6g}, omega = "
+                  f"{s['omega']:.6g}, Im lambda = {s.get('eigenvalue', [0, 0])[1]:.6g}")
+        print(f"[{name}] whirling: {len(w['points'])} points, {w['wall']:.1f} s")
+    if "shoot" in parts and "whirling" in res:
+        w = res["whirling"]
+        tor = [s["p"] for s in w["special"] if s["kind"] in ("hopf", "double_hopf")]
+        p_target = 0.5 * (dh["p"] + tor[0]) if tor else w["points"][len(w["points"]) // 2]["p"]
+        res["whirling_shooting"] = whirling_shooting(model, w, steps, p_target)
+        print(f"[{name}] shooting check: {res['whirling_shooting']}")
+    if "beating" in parts:
+        b = beating(model, dh, cfg, quick, steps)
+        res["beating"] = b
+        for s in b["special"]:
+            print(f"[{name}] beating {s['kind']} ({s['event']}) at {s['p']}, T = {s['T']}, "
+                  f"mu = {s.get('multiplier')}")
+        print(f"[{name}] beating: {len(b['points'])} points, {b['wall']:.1f} s")
+    if "dt" in parts and "beating" in res:
+        sps = [s for s in res["beating"]["special"] if s.get("event") == "out_of_plane_pitchfork"]
+        if sps:
+            res["dt_study"] = dt_study(model, sps[0], [200, 400, 800])
+    res.setdefault("wall_total", {})
+    res["wall_total"][",".join(parts)] = time.perf_counter() - t0
+    path.write_text(json.dumps(_jsonable(res), indent=1))
+    print(f"[{name}] wrote {path}")
+    return res
+
+
+def plot() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    for name, cfg in MODELS.items():
+        path = FIG / f"filament_{name}_cycles.json"
+        if not path.exists():
+            continue
+        res = json.loads(path.read_text())
+        fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+        for key, lab, fkey, ekey in (("whirling", "whirling", "freq", "E"),
+                                     ("beating", "beating", "freq", "E_mean")):
+            if key not in res:
+                continue
+            pts = res[key]["points"]
+            p = np.array([q["p"] for q in pts])
+            fr = np.array([q[fkey] for q in pts])
+            E = np.array([q[ekey] for q in pts])
+            stable = np.array([q["n_unstable"] == 0 for q in pts])
+            for arr, a in ((fr, ax[0]), (E, ax[1])):
+                line, = a.plot(p, arr, "-", label=lab, lw=1)
+                a.plot(p[stable], arr[stable], "o", ms=3, color=line.get_color())
+                a.plot(p[~stable], arr[~stable], "o", ms=3, mfc="none", color=line.get_color())
+            for s in res[key]["special"]:
+                if s["kind"] == "endpoint":
+                    continue
+                j = int(np.argmin(np.abs(p - s["p"])))
+                ax[0].plot(s["p"], s["freq"], "k*", ms=9)
+                ax[1].plot(s["p"], E[j], "k*", ms=9)
+        ax[0].set_xlabel(cfg["label"])
+        ax[1].set_xlabel(cfg["label"])
+        ax[0].set_ylabel("frequency (1 / time unit)")
+        ax[1].set_ylabel("mean bending energy")
+        ax[0].legend()
+        fig.suptitle(f"{name}: filled = stable, open = unstable, * = torus / pitchfork")
+        fig.tight_layout()
+        fig.savefig(FIG / f"filament_{name}_cycles.png", dpi=110)
+        plt.close(fig)
+        print(f"wrote {FIG / f'filament_{name}_cycles.png'}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", choices=list(MODELS), default="tip_ff")
+    ap.add_argument("--part", default="whirling,shoot,beating,dt",
+                    help="comma list of whirling, shoot, beating, dt")
+    ap.add_argument("--quick", action="store_true", help="short smoke run")
+    ap.add_argument("--steps", type=int, default=400, help="BDF2 steps per period (paper: 400)")
+    ap.add_argument("--plot", action="store_true", help="only draw figures from the JSON results")
+    a = ap.parse_args()
+    FIG.mkdir(parents=True, exist_ok=True)
+    if a.plot:
+        plot()
+        return
+    run_model(a.model, a.part.split(","), a.quick, a.steps)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,301 @@
+"""Filament-specific seeding of the whirling and beating branches.
+
+The engine stays generic; this module only knows the filament's geometry:
+
+- :func:`double_hopf` locates the O(2) double Hopf point of the upright
+  state on the planar reduced model (Brent on the real part of the leading
+  pair) and returns the in-plane critical eigenvector ``v_x`` embedded in 3D
+  and its copy ``v_y = R_z(pi/2) v_x`` rotated about e3;
+- :func:`whirling_seed` builds the rotating-wave seed ``Re(v_x + i v_y)``
+  (a bend that rotates rigidly about e3) with the wave speed ``omega/m``,
+  ``L r = i m r``;
+- :func:`beating_seed` the planar standing-wave seed ``Re(v_x)`` (reduced
+  coordinates), ``T = 2 pi/omega``;
+- :class:`FixedStepFlow` wraps a :class:`FilamentModel` so that its ``flow``
+  takes a fixed number of BDF2 steps per call (``dt = T/steps``; the paper
+  uses ``T/400``), which shooting and Floquet analysis need (a smooth map of
+  ``u`` and ``T``); the planar subspace's reduced model is wrapped too.
+- :func:`plane_fraction` splits a 3D vector into in-plane (``U_n,y``) and
+  out-of-plane parts, to classify Floquet modes of planar orbits.
+
+See docs/filament-cycles.md.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import brentq
+
+from contfil.engine.branch import CYCLE_BRANCH_POINT
+from contfil.engine.events import Event, EventContext
+from contfil.engine.problem_base import Stability
+from contfil.errors import ContfilError
+from contfil.models.protocol import InvariantSubspace, Symmetries
+
+from . import stepper as _stepper
+from .model import FilamentModel
+
+Array = NDArray[np.float64]
+
+__all__ = [
+    "FixedStepFlow",
+    "beating_seed",
+    "double_hopf",
+    "leading_pair",
+    "OutOfPlanePitchforkEvent",
+    "plane_fraction",
+    "solve_beating",
+    "solve_whirling",
+    "whirling_seed",
+]
+
+
+class FixedStepFlow:
+    """A filament model whose ``flow(u, p, T)`` takes ``steps`` BDF2 steps.
+
+    Every other attribute is the wrapped model's. The planar invariant
+    subspace returns a wrapped reduced model, so a shooting problem solved in
+    the subspace and its 3D stability use the same time step ``T/steps``.
+    ``flow_calls`` counts time-stepper calls (the honest cost unit).
+    """
+
+    def __init__(self, model: FilamentModel, steps: int = 400, **stepper_kw: Any) -> None:
+        if int(steps) < 1:
+            raise ValueError(f"FixedStepFlow: steps must be >= 1, got {steps!r}")
+        self.base = model
+        self.steps = int(steps)
+        self.stepper_kw = dict(stepper_kw)
+        self.flow_calls = 0
+        sym = model.symmetries
+        subs = {}
+        for name, sub in sym.invariant_subspaces.items():
+            subs[name] = InvariantSubspace(
+                name, sub.embed, sub.project,
+                lambda sub=sub: FixedStepFlow(sub.reduced_model(), self.steps, **self.stepper_kw),
+            )
+        self.symmetries = Symmetries(list(sym.continuous), dict(sym.reflections), subs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.base, name)
+
+    def flow(self, u: Array, p: Array, T: float) -> Array:
+        """``phi_T(u)`` by ``steps`` BDF2 steps of size ``T/steps``."""
+        self.flow_calls += 1
+        return _stepper.flow(self.base, u, p, T, steps=self.steps, **self.stepper_kw)
+
+
+def planar(model: FilamentModel) -> FilamentModel:
+    """The planar (x-z) reduced model of a 3D filament model."""
+    return model.symmetries.invariant_subspaces["planar_xz"].reduced_model()
+
+
+def leading_pair(J: Array) -> tuple[complex, NDArray[np.complex128]]:
+    """Eigenvalue with the largest real part (Im >= 0) and its unit eigenvector."""
+    vals, V = np.linalg.eig(J)
+    k = int(np.lexsort((-vals.imag, -vals.real))[0])
+    v = V[:, k]
+    if vals[k].imag < 0:
+        return complex(np.conj(vals[k])), np.conj(v) / np.linalg.norm(v)
+    return complex(vals[k]), v / np.linalg.norm(v)
+
+
+def double_hopf(model: FilamentModel, bracket: tuple[float, float],
+                xtol: float = 1e-10) -> dict[str, Any]:
+    """O(2) double Hopf point of the upright state in a bracket of the parameter.
+
+    Returns ``p`` (critical actuation), ``omega`` (``Im lambda``), the planar
+    critical eigenvector ``v_planar`` (complex, unit, phase-normalised so that
+    ``Re v . Im v = 0`` and ``|Re v| >= |Im v|``), its 3D embedding ``v_x`` and
+    ``v_y = R_z(pi/2) v_x``, and the residual ``|Re lambda|`` at the root.
+    """
+    mp = planar(model) if not model.planar else model
+    u0 = np.zeros(mp.dim)
+
+    def re_lead(s: float) -> float:
+        return leading_pair(mp.jacobian(u0, np.array([s])))[0].real
+
+    a, b = bracket
+    if re_lead(a) * re_lead(b) > 0:
+        raise ContfilError(f"double_hopf: the leading real part does not change sign in {bracket}")
+    s = brentq(re_lead, a, b, xtol=xtol)
+    lam, v = leading_pair(mp.jacobian(u0, np.array([s])))
+    v = normalise_phase(v)
+    emb = model.symmetries.invariant_subspaces["planar_xz"].embed
+    vx = np.asarray(emb(v.real), dtype=float) + 1j * np.asarray(emb(v.imag), dtype=float)
+    rot = model.symmetries.continuous[0]
+    vy = rot.act(np.pi / 2, vx.real) + 1j * rot.act(np.pi / 2, vx.imag)
+    return {"p": float(s), "omega": float(abs(lam.imag)), "eigenvalue": lam,
+            "v_planar": v, "v_x": vx, "v_y": vy, "re_residual": abs(lam.real)}
+
+
+def normalise_phase(v: NDArray[np.complex128]) -> NDArray[np.complex128]:
+    """Multiply by a phase so that ``Re v . Im v = 0`` and ``|Re v| >= |Im v|``."""
+    a, b = v.real, v.imag
+    phi = 0.5 * np.arctan2(-2 * a @ b, a @ a - b @ b)
+    w = v * np.exp(1j * phi)
+    if np.linalg.norm(w.imag) > np.linalg.norm(w.real):
+        w = w * 1j
+    return w / np.linalg.norm(w)
+
+
+def whirling_seed(model: FilamentModel, dh: dict[str, Any]) -> dict[str, Any]:
+    """Rotating-wave direction ``d = Re(r)/|Re r|``, ``r = v_x + i v_y``.
+
+    ``L r = i m r`` (``m = ±1``; checked), so ``Re(r e^{i omega t}) =
+    exp((omega/m) t L) Re r``: the wave speed of the co-moving frame is
+    ``omega_rw = omega/m``. Returns ``d``, ``omega_rw``, ``m`` and the
+    eigen-residual ``|L r - i m r|``.
+    """
+    r = dh["v_x"] + 1j * dh["v_y"]
+    L = model.symmetries.continuous[0].generator
+    Lr = L @ r
+    m_c = complex(np.vdot(r, Lr) / np.vdot(r, r))
+    res = float(np.linalg.norm(Lr - m_c * r) / np.linalg.norm(r))
+    m = m_c.imag
+    if res > 1e-8 or abs(m_c.real) > 1e-8:
+        raise ContfilError(
+            f"whirling_seed: v_x + i v_y is not an eigenvector of L (residual {res:.2e})"
+        )
+    d = r.real / np.linalg.norm(r.real)
+    return {"d": d, "omega_rw": dh["omega"] / m, "m": m, "eig_residual": res}
+
+
+def beating_seed(dh: dict[str, Any]) -> dict[str, Any]:
+    """Planar standing-wave direction ``Re(v_planar)`` (unit) and period ``2 pi/omega``."""
+    v = dh["v_planar"]
+    d = v.real / np.linalg.norm(v.real)
+    return {"d": d, "T": 2 * np.pi / dh["omega"]}
+
+
+def plane_fraction(v: Array) -> float:
+    """Fraction ``|P v| / |v|`` of a 3D (complex) vector in the planar subspace.
+
+    The planar subspace is ``U_n = (0, phi_n, 0)``; the out-of-plane part
+    (``U_n,x``, ``U_n,z``) is its orthogonal complement, also invariant under
+    the linearisation about a planar state (mirror ``y -> -y`` symmetry).
+    """
+    v = np.asarray(v)
+    inplane = np.linalg.norm(v[1::3])
+    return float(inplane / np.linalg.norm(v))
+
+
+def solve_whirling(model: FilamentModel, dh: dict[str, Any], eps: float,
+                   polish: int = 3) -> tuple[Any, Array, float, dict[str, Any]]:
+    """First whirling rotating wave at amplitude ``<d, u> = eps`` from the double Hopf.
+
+    Solves ``f(u) - omega L u = 0``, ``<L u_ref, u - u_ref> = 0`` and the
+    amplitude condition for ``(u, omega, p)`` with the engine's
+    :func:`~contfil.engine.cycle_switching.solve_with_amplitude` (hookstep
+    Newton-Krylov), then ``polish`` dense Newton steps at the found ``p`` on
+    the co-moving system itself. Returns ``(problem, x = (u, omega), p, info)``;
+    ``info["residual"]`` is ``max|G(x, p)|`` of the co-moving system.
+    """
+    from contfil.engine.cycle_switching import solve_with_amplitude
+    from contfil.engine.rotating_wave import RotatingWaveProblem
+
+    ws = whirling_seed(model, dh)
+    pb = RotatingWaveProblem(model, model.param_names[0], np.array([dh["p"]]))
+    u0 = eps * ws["d"]
+    pb.set_reference(u0)
+    z0 = np.concatenate([u0, [ws["omega_rw"]]])
+    x_star = np.concatenate([np.zeros_like(u0), [ws["omega_rw"]]])
+    x, p, info = solve_with_amplitude(pb, z0, dh["p"], x_star,
+                                      np.concatenate([ws["d"], [0.0]]), eps, tol=1e-10)
+    for _ in range(polish):
+        r = pb.residual(x, p)
+        if np.max(np.abs(r)) < 1e-13:
+            break
+        x = x - np.linalg.solve(pb.jacobian(x, p), r)
+    out = dict(info)
+    out["residual"] = float(np.max(np.abs(pb.residual(x, p))))
+    out["seed"] = ws
+    return pb, x, p, out
+
+
+def solve_beating(flow_model: FixedStepFlow, dh: dict[str, Any], eps: float,
+                  tol: float = 1e-10) -> tuple[Any, Array, float, dict[str, Any]]:
+    """First beating orbit (planar shooting) at amplitude ``<d, phi - 0> = eps``.
+
+    ``flow_model`` is the 3D model wrapped by :class:`FixedStepFlow`; the
+    orbit is solved in its planar reduced model by
+    :class:`~contfil.engine.shooting.PeriodicOrbitProblem` (``subspace =
+    "planar_xz"``) with ``x = (phi, T)``, seeded with ``eps Re(v_x)`` and
+    ``T = 2 pi/omega``. Returns ``(problem, x, p, info)``.
+    """
+    from contfil.engine.cycle_switching import solve_with_amplitude
+    from contfil.engine.shooting import PeriodicOrbitProblem
+
+    bs = beating_seed(dh)
+    pb = PeriodicOrbitProblem(flow_model, flow_model.param_names[0], np.array([dh["p"]]),
+                              subspace="planar_xz")
+    u0 = eps * bs["d"]
+    pb.set_reference(u0, dh["p"])
+    x_star = np.concatenate([np.zeros_like(u0), [bs["T"]]])
+    x, p, info = solve_with_amplitude(pb, np.concatenate([u0, [bs["T"]]]), dh["p"], x_star,
+                                      np.concatenate([bs["d"], [0.0]]), eps, tol=tol)
+    out = dict(info)
+    out["residual"] = float(np.max(np.abs(pb.residual(x, p))))
+    return pb, x, p, out
+
+
+class OutOfPlanePitchforkEvent(Event):
+    """A real Floquet multiplier of a planar orbit crossing +1 with an out-of-plane mode.
+
+    The shooting problem of a planar orbit solved in the planar subspace
+    cannot see this symmetry-breaking pitchfork (its bordered determinant
+    lives in the subspace); the full-model multipliers do. Candidates: the
+    non-trivial real positive multipliers whose eigenvector has less than
+    half its norm in the plane (:func:`plane_fraction`). Detection: their
+    count outside the unit circle and the total unstable count both change;
+    localisation on ``log mu`` of the candidate nearest the unit circle.
+    """
+
+    name = "out_of_plane_pitchfork"
+    kind = CYCLE_BRANCH_POINT
+    needs_stability = True
+    imag_tol = 1e-6
+
+    def _cands(self, st: Stability) -> tuple[NDArray[np.complex128], list[int]]:
+        vals = np.asarray(st.values, dtype=complex)
+        idx = []
+        for k, mu in enumerate(vals):
+            if st.trivial is not None and st.trivial[k]:
+                continue
+            if abs(mu.imag) > self.imag_tol * max(1.0, abs(mu)) or mu.real <= 0:
+                continue
+            if st.vectors is None or plane_fraction(st.vectors[:, k]) < 0.5:
+                idx.append(k)
+        return vals[idx].real, idx
+
+    def values(self, ctx: EventContext) -> Array:
+        c, _ = self._cands(ctx.stability)
+        return np.array([float(np.sum(c > 1.0)), float(ctx.stability.n_unstable)])
+
+    def crossed(self, v0: Array, v1: Array) -> list[int]:
+        return [0] if (v0[0] != v1[0] and v0[1] != v1[1]) else []
+
+    def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Any:
+        def g(ctx: EventContext) -> float:
+            c, _ = self._cands(ctx.stability)
+            if c.size == 0:
+                return float("nan")
+            lg = np.log(c)
+            return float(lg[int(np.argmin(np.abs(lg)))])
+
+        return g
+
+    def special_point_data(self, ctx: EventContext, j: int, ctx0: EventContext,
+                           ctx1: EventContext) -> tuple[str, dict[str, Any]] | None:
+        st = ctx.stability_with_vectors()
+        c, idx = self._cands(st)
+        if c.size == 0:
+            return None
+        k = int(np.argmin(np.abs(np.log(c))))
+        v = np.asarray(st.vectors[:, idx[k]])
+        v = v * np.exp(-1j * np.angle(v[int(np.argmax(np.abs(v)))]))
+        return self.kind, {"multiplier": float(c[k]), "test_value": float(np.log(c[k])),
+                           "plane_fraction": plane_fraction(v), "v_re": v.real.copy(),
+                           "symmetry_breaking": "out_of_plane", "switchable": True}
