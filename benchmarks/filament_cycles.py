@@ -182,9 +182,17 @@ def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick
              "newton_iterations": info["iterations"]}
     planar = pb.solve_model.base
     p_max = 1.15 * ps if quick else cfg["b_pmax"]
-    st = ContinuationSettings(ds=0.01 * ps, ds_max=0.05 * ps, ds_min=1e-5 * ps,
+    # Arclength weights: a step of 0.1 p* in p counts as much as one of 0.4
+    # (2-norm) in the reduced state, so steps stay small in amplitude near
+    # onset (vertical branch) and large in p later. ds_max is that step.
+    n = pb.n
+    ratio = 16.0 / (n * ps**2)  # (1 - theta)/theta
+    theta = 1.0 / (1.0 + ratio)
+    dsm = float(np.sqrt(theta / n) * 0.4)
+    st = ContinuationSettings(ds=0.25 * dsm, ds_max=dsm, ds_min=1e-4 * dsm, theta=theta,
                               max_points=3 if quick else 60, p_max=p_max,
-                              event_tol=1e-4 * ps, event_max_iter=12, newton_max_iter=8)
+                              event_tol=float(np.sqrt(1 - theta)) * 1e-4 * ps,
+                              event_max_iter=12, newton_max_iter=8, verbose=True)
     events = [*cycle_events(), OutOfPlanePitchforkEvent()]
     run = Continuation(pb, x1, p1, st, events=events)
     pts, after = [], None
@@ -268,45 +276,62 @@ def _jsonable(o: Any) -> Any:
     return o
 
 
-def run_model(name: str, parts: list[str], quick: bool, steps: int) -> dict[str, Any]:
+def _path(name: str, part: str, quick: bool) -> Path:
+    return FIG / f"filament_{name}_{part}{'_quick' if quick else ''}.json"
+
+
+def load(name: str, part: str, quick: bool = False) -> dict[str, Any] | None:
+    """Stored result of one part (None if absent)."""
+    p = _path(name, part, quick)
+    return json.loads(p.read_text()) if p.exists() else None
+
+
+def _save(name: str, part: str, quick: bool, data: dict[str, Any]) -> None:
+    p = _path(name, part, quick)
+    p.write_text(json.dumps(_jsonable(data), indent=1))
+    print(f"[{name}] wrote {p}", flush=True)
+
+
+def run_model(name: str, parts: list[str], quick: bool, steps: int) -> None:
     cfg = MODELS[name]
-    path = FIG / f"filament_{name}_cycles{'_quick' if quick else ''}.json"
-    res: dict[str, Any] = json.loads(path.read_text()) if path.exists() else {}
     model = FilamentModel(ROOT / "branches" / f"{name}.toml")
     t0 = time.perf_counter()
     dh = double_hopf(model, cfg["bracket"])
-    res["double_hopf"] = {"p": dh["p"], "omega": dh["omega"], "re_residual": dh["re_residual"],
-                          "wall": time.perf_counter() - t0}
+    dhr = {"p": dh["p"], "omega": dh["omega"], "re_residual": dh["re_residual"],
+           "wall": time.perf_counter() - t0}
     print(f"[{name}] double Hopf {cfg['label']}* = {dh['p']:.6g}, omega = {dh['omega']:.6g}")
     if "whirling" in parts:
         w = whirling(model, dh, cfg, quick)
-        res["whirling"] = w
+        w["double_hopf"] = dhr
         for s in w["special"]:
             print(f"[{name}] whirling {s['kind']} at {cfg['label']} = {s['p']:.6g}, omega = "
                   f"{s['omega']:.6g}, Im lambda = {s.get('eigenvalue', [0, 0])[1]:.6g}")
         print(f"[{name}] whirling: {len(w['points'])} points, {w['wall']:.1f} s")
-    if "shoot" in parts and "whirling" in res:
-        w = res["whirling"]
+        _save(name, "whirling", quick, w)
+    if "shoot" in parts:
+        w = load(name, "whirling", quick)
+        if w is None:
+            raise SystemExit("run --part whirling first")
         tor = [s["p"] for s in w["special"] if s["kind"] in ("hopf", "double_hopf")]
         p_target = 0.5 * (dh["p"] + tor[0]) if tor else w["points"][len(w["points"]) // 2]["p"]
-        res["whirling_shooting"] = whirling_shooting(model, w, steps, p_target)
-        print(f"[{name}] shooting check: {res['whirling_shooting']}")
+        sh = whirling_shooting(model, w, steps, p_target)
+        print(f"[{name}] shooting check: {sh}")
+        _save(name, f"shoot{steps}", quick, sh)
     if "beating" in parts:
         b = beating(model, dh, cfg, quick, steps)
-        res["beating"] = b
+        b["double_hopf"] = dhr
         for s in b["special"]:
             print(f"[{name}] beating {s['kind']} ({s['event']}) at {s['p']}, T = {s['T']}, "
                   f"mu = {s.get('multiplier')}")
         print(f"[{name}] beating: {len(b['points'])} points, {b['wall']:.1f} s")
-    if "dt" in parts and "beating" in res:
-        sps = [s for s in res["beating"]["special"] if s.get("event") == "out_of_plane_pitchfork"]
-        if sps:
-            res["dt_study"] = dt_study(model, sps[0], [200, 400, 800])
-    res.setdefault("wall_total", {})
-    res["wall_total"][",".join(parts)] = time.perf_counter() - t0
-    path.write_text(json.dumps(_jsonable(res), indent=1))
-    print(f"[{name}] wrote {path}")
-    return res
+        _save(name, f"beating{'' if steps == 400 else steps}", quick, b)
+    if "dt" in parts:
+        b = load(name, "beating", quick)
+        sps = [] if b is None else [s for s in b["special"]
+                                    if s.get("event") == "out_of_plane_pitchfork"]
+        if not sps:
+            raise SystemExit("no out-of-plane pitchfork stored: run --part beating first")
+        _save(name, "dt", quick, {"pitchfork": sps[0], "runs": dt_study(model, sps[0], [200, 400, 800])})
 
 
 def plot() -> None:
@@ -316,10 +341,10 @@ def plot() -> None:
     import matplotlib.pyplot as plt
 
     for name, cfg in MODELS.items():
-        path = FIG / f"filament_{name}_cycles.json"
-        if not path.exists():
+        res = {k: load(name, k) for k in ("whirling", "beating")}
+        res = {k: v for k, v in res.items() if v is not None}
+        if not res:
             continue
-        res = json.loads(path.read_text())
         fig, ax = plt.subplots(1, 2, figsize=(10, 4))
         for key, lab, fkey, ekey in (("whirling", "whirling", "freq", "E"),
                                      ("beating", "beating", "freq", "E_mean")):

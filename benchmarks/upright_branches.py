@@ -47,6 +47,7 @@ from contfil.engine import (
     NodeFocusEvent,
 )
 from contfil.engine.branch import DOUBLE_HOPF, HOPF
+from contfil.engine.switching import hopf_normal_form
 from contfil.models.filament.model import FilamentModel
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -135,6 +136,21 @@ def upright_branch(
         if pt.eigenvalues is not None
     ]
     out["_model"] = model
+    dh = [sp for sp in br.special_points if sp.kind == DOUBLE_HOPF]
+    if dh:
+        L = model.symmetries.continuous[0].generator
+        t1 = time.perf_counter()
+        nf = hopf_normal_form(pb, dh[0], L, h=2e-3)
+        out["normal_form"] = {
+            "A": nf["A"],
+            "B": nf["B"],
+            "dlambda_dp": nf["dlambda_dp"],
+            "rotating_stable": nf["rotating_stable"],
+            "standing_stable": nf["standing_stable"],
+            "rotating_supercritical": nf["rotating_supercritical"],
+            "standing_supercritical": nf["standing_supercritical"],
+            "time": time.perf_counter() - t1,
+        }
     return out
 
 
@@ -190,6 +206,31 @@ def main() -> None:
             f"{max(abs(z.real) for z in chk['pairs']):.1e} | {r['points']} | {r['wall_time']:.2f} |"
         )
         results.append(r)
+    lines.append("")
+    lines.append("O(2) normal form at the double Hopf (unit rotating eigenvectors, FD step 2e-3):")
+    lines.append("")
+    lines.append(
+        "| model | A | B | Re B / Re A | dlambda/dp | whirling (rotating) | "
+        "beating (standing) | time (s) |"
+    )
+    lines.append("|---|---|---|---|---|---|---|---|")
+    for r in results:
+        nf = r.get("normal_form")
+        if nf is None:
+            continue
+
+        def _st(sup: bool, st: bool) -> str:
+            return ("supercritical" if sup else "subcritical") + (
+                ", stable" if st else ", unstable"
+            )
+
+        lines.append(
+            f"| {r['model']} | {nf['A'].real:.4f} {nf['A'].imag:+.4f}i | "
+            f"{nf['B'].real:.4f} {nf['B'].imag:+.4f}i | {nf['B'].real / nf['A'].real:.3f} | "
+            f"{nf['dlambda_dp'].real:.4f} {nf['dlambda_dp'].imag:+.4f}i | "
+            f"{_st(nf['rotating_supercritical'], nf['rotating_stable'])} | "
+            f"{_st(nf['standing_supercritical'], nf['standing_stable'])} | {nf['time']:.2f} |"
+        )
     lines.append("")
     for r in results:
         lines.append(

@@ -49,7 +49,10 @@ def test_rotating_wave_branch_from_double_hopf(case):
                                    atol=1e-9)
         assert pt.n_unstable == (0 if name == "tw_stable" else 2)
     pt = br.points[-1]
-    chk = rotating_wave_by_shooting(m, pt.u, pt.extra["omega"], pt.params, steps=60)
+    # independent solve: start off the rotating wave (state and speed perturbed)
+    u_g = pt.u + 1e-3 * np.array([0.3, -0.5, 0.2, 0.1])
+    chk = rotating_wave_by_shooting(m, u_g, pt.extra["omega"] * 1.001, pt.params, steps=60)
+    assert chk["newton"]["iterations"] >= 2
     assert chk["omega"] == pytest.approx(pt.extra["omega"], abs=1e-8)
     assert chk["stability"].trivial.sum() == 1
     np.testing.assert_allclose(np.sort(np.abs(chk["stability"].values)),

@@ -47,6 +47,7 @@ def test_pitchfork_branch_point_exact_and_not_a_fold():
     assert _kinds(br) == [BRANCH_POINT]
     sp = br.special_points[0]
     assert abs(sp.point.p - e.exact["bp"]) < 1e-8
+    assert sp.data["localisation"] == "converged" and sp.data["event"] == "branch_point"
     # stability changes across it: stable for mu<0, unstable for mu>0
     assert br.points[sp.index].n_unstable == 0 and br.points[sp.index + 1].n_unstable == 1
 
@@ -121,11 +122,12 @@ def test_bratu_lower_branch_matches_exact_solution():
 
 
 def test_matrix_free_path_agrees_with_dense():
-    lam_dense, _ = _bratu_fold(150)
-    lam_mf, br = _bratu_fold(150, dense_threshold=10)
+    # (small N: dense LAPACK is slow under oversubscribed threaded BLAS)
+    lam_dense, _ = _bratu_fold(60)
+    lam_mf, br = _bratu_fold(60, dense_threshold=10)
     assert abs(lam_dense - lam_mf) < 1e-8
     # shift-invert eigenvalues were used (only the leading few stored)
-    assert br.points[0].eigenvalues.size < 150
+    assert br.points[0].eigenvalues.size < 60
 
 
 def test_custom_corrector_is_used():
@@ -213,3 +215,17 @@ def test_hopf_is_default_event_for_equilibria():
     e = hopf_2d()
     br = continue_branch(EquilibriumProblem(e.model, "mu"), e.u0, -1.0, _settings())
     assert _kinds(br) == [HOPF]
+
+
+def test_settings_from_dict_round_trip_and_errors():
+    from contfil.errors import SpecError
+
+    s = ContinuationSettings.from_dict({"ds": 0.02, "p_max": 3.0})
+    assert s.ds == 0.02 and s.p_max == 3.0
+    d = s.to_dict()
+    assert d["p_min"] is None and json.loads(json.dumps(d))["ds"] == 0.02
+    assert ContinuationSettings.from_dict(d).p_min == -np.inf
+    with pytest.raises(SpecError, match="dss"):
+        ContinuationSettings.from_dict({"dss": 0.1})
+    with pytest.raises(SpecError, match="ds_min"):
+        ContinuationSettings.from_dict({"ds": 1e-12})

@@ -70,7 +70,7 @@ def test_brusselator_1d_hopf_on_dense_and_large_paths(dense_threshold):
     from contfil.engine.branch import HOPF
     from contfil.models.catalog import brusselator_1d
 
-    e = brusselator_1d(N=100, A=2.0, d=0.1)
+    e = brusselator_1d(N=40, A=2.0, d=0.1)
     pb = EquilibriumProblem(e.model, "B", dense_threshold=dense_threshold)
     br = continue_branch(pb, e.u0, e.p0, ContinuationSettings(ds=0.1, ds_max=0.5, p_max=7.0))
     (sp,) = [s for s in br.special_points if s.kind == HOPF]
@@ -79,4 +79,4 @@ def test_brusselator_1d_hopf_on_dense_and_large_paths(dense_threshold):
     assert sp.data["multiplicity"] == 1
     # the critical eigenvector is the uniform mode: x and y parts constant
     v = sp.data["v_re"] + 1j * sp.data["v_im"]
-    assert np.std(v[:100]) < 1e-6 * np.abs(v).max() and np.std(v[100:]) < 1e-6 * np.abs(v).max()
+    assert np.std(v[:40]) < 1e-6 * np.abs(v).max() and np.std(v[40:]) < 1e-6 * np.abs(v).max()

@@ -7,6 +7,7 @@ dense finite-difference Jacobian at the localised f).
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +21,9 @@ filament = pytest.importorskip("contfil.models.filament.model")
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@functools.cache
 def _run_upright(name: str, dp_max: float, p_max: float):
+    """Upright branch up to its first Hopf-type point (cached: several tests read it)."""
     model = filament.FilamentModel(ROOT / "branches" / f"{name}.toml")
     pb = EquilibriumProblem(model, model.param_names[0])
     ds = dp_max * np.sqrt(0.5)
@@ -74,3 +77,33 @@ def test_tip_ff_upright_double_hopf():
 def test_other_models_upright_double_hopf(name, dp, pmax):
     model, br = _run_upright(name, dp_max=dp, p_max=pmax)
     _check_double_hopf(model, br)
+
+
+@pytest.mark.parametrize(
+    "name,dp,pmax",
+    [
+        ("tip_ff", 3.0, 200.0),
+        ("dis_ff", 0.3, 200.0),
+        ("tip_sf", 15.0, 2000.0),
+        ("dis_sf", 4.0, 2000.0),
+    ],
+)
+def test_whirling_stable_and_beating_unstable_at_birth(name, dp, pmax):
+    """The O(2) normal form at the double Hopf decides which branch is stable
+    at onset: the paper reports whirling (rotating wave) stable and beating
+    (standing wave) unstable at birth in all four models."""
+    from contfil.engine import hopf_normal_form
+
+    model, br = _run_upright(name, dp_max=dp, p_max=pmax)
+    (sp,) = [s for s in br.special_points if s.kind == DOUBLE_HOPF]
+    pb = EquilibriumProblem(model, model.param_names[0])
+    L = model.symmetries.continuous[0].generator
+    nf = hopf_normal_form(pb, sp, L, h=2e-3)
+    nf2 = hopf_normal_form(pb, sp, L, h=1e-3)
+    # finite-difference convergence of the coefficients (O(h^2))
+    assert abs(nf["A"] - nf2["A"]) < 1e-3 * abs(nf["A"])
+    assert abs(nf["B"] - nf2["B"]) < 1e-3 * abs(nf["B"])
+    assert np.allclose(np.sort(nf["m"].imag), [-1.0, 1.0], atol=1e-8)  # azimuthal wavenumber 1
+    assert nf["dlambda_dp"].real > 0  # the pairs cross to the right as actuation grows
+    assert nf["rotating_supercritical"] and nf["rotating_stable"]
+    assert nf["standing_supercritical"] and not nf["standing_stable"]

@@ -365,3 +365,6 @@ def test_model_flow_hook_delegates_here(tip_ff: FilamentModel) -> None:
     assert tr.states.shape == (3, U0.size)
     assert np.allclose(tr.states[-1], a, atol=1e-13)
     assert np.allclose(tr.t, [0.0, 0.005, 0.01])
+    tr = trajectory(tip_ff, U0, p, 0.01, steps=10, out_every=4)
+    assert np.allclose(tr.t, [0.0, 0.004, 0.008, 0.01])
+    assert np.allclose(tr.states[-1], a, atol=1e-13)

@@ -83,7 +83,10 @@ def test_rotating_wave_vs_shooting_cross_check():
     pb = RotatingWaveProblem(m, "mu")
     x = _solve(pb, np.array([np.sqrt(ex["r2"]), 0.0, 0.0, 0.0, 1.1]), 0.2)
     st = pb.stability(x, 0.2)
-    chk = rotating_wave_by_shooting(m, x[:4], x[4], pb.params_at(0.2), steps=60)
+    # independent solve: start off the rotating wave (state and speed perturbed)
+    u_g = x[:4] + 1e-3 * np.array([0.3, -0.5, 0.2, 0.1])
+    chk = rotating_wave_by_shooting(m, u_g, x[4] * 1.001, pb.params_at(0.2), steps=60)
+    assert chk["newton"]["iterations"] >= 2
     # θ = -ω T: the same angular speed from the time stepper
     assert chk["omega"] == pytest.approx(x[4], abs=1e-8)
     assert chk["period"] == pytest.approx(ex["period"], rel=1e-8)

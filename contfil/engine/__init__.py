@@ -27,6 +27,7 @@ from contfil.engine.problem_base import Problem, Stability
 from contfil.engine.switching import (
     branch_point_tangents,
     hopf_data,
+    hopf_normal_form,
     o2_hopf_modes,
     switch_at_branch_point,
 )
@@ -55,6 +56,7 @@ __all__ = [
     "shift_invert_stability",
     "branch_point_tangents",
     "hopf_data",
+    "hopf_normal_form",
     "o2_hopf_modes",
     "switch_at_branch_point",
 ]

@@ -113,7 +113,43 @@ class ContinuationSettings:
     krylov: dict[str, Any] = field(default_factory=dict)
     verbose: bool = False
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], where: str = "continuation") -> ContinuationSettings:
+        """Settings from a mapping (e.g. a TOML table); unknown keys raise
+        :class:`~contfil.errors.SpecError` naming the key and the known ones."""
+        from dataclasses import fields
+
+        from contfil.errors import SpecError
+
+        known = {f.name for f in fields(cls)}
+        bad = sorted(set(d) - known)
+        if bad:
+            raise SpecError(f"[{where}] unknown setting(s) {bad}; known: {sorted(known)}")
+        try:
+            return cls(**dict(d))
+        except (TypeError, ValueError) as exc:
+            raise SpecError(f"[{where}] {exc}") from None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain dict (JSON/TOML friendly; infinite bounds become None)."""
+        from dataclasses import asdict
+
+        out = asdict(self)
+        out["krylov"] = {
+            k: (f"<{getattr(v, '__name__', type(v).__name__)}>" if callable(v) else v)
+            for k, v in self.krylov.items()
+        }
+        for k in ("p_min", "p_max"):
+            if not np.isfinite(out[k]):
+                out[k] = None
+        return out
+
     def __post_init__(self) -> None:
+        # None (from to_dict / TOML) means unbounded.
+        if self.p_min is None:
+            self.p_min = -np.inf
+        if self.p_max is None:
+            self.p_max = np.inf
         if not (0.0 < self.ds_min <= self.ds <= self.ds_max):
             raise ValueError(
                 f"ContinuationSettings: need 0 < ds_min <= ds <= ds_max, got "
@@ -210,11 +246,12 @@ class Continuation:
         self.w[-1] = 1.0 - th
         self.ds = self.settings.ds
         self.branch = Branch(kind=problem.kind, param=getattr(problem, "param", "p"))
-        self.branch.meta.update({"theta": th, "n": self.n})
+        self.branch.meta.update({"theta": th, "n": self.n, "settings": self.settings.to_dict()})
         self.stop_reason: str | None = None
         self._prev: _Rec | None = None
         self._done = False
         self.stats = {"steps_rejected": 0, "newton_failures": 0, "localisations": 0}
+        self._tau_loc: Array | None = None  # border tangent of the current localisation
 
     # ------------------------------------------------------------------ algebra
     def _ip(self, a: Array, b: Array) -> float:
@@ -654,11 +691,33 @@ class Continuation:
         return pt
 
     # ------------------------------------------------------------------ events
+    def _localise_step(self, A: tuple, B: tuple, X0: Array, c0: Array, g: Callable, dxds: Callable):  # noqa: ANN202
+        """One safeguarded secant step between bracket ends ``A`` and ``B``
+        (tuples ``(s, X, dX/ds, ctx, g)``); ``None`` if the corrector fails."""
+        sa, Xa, da, _, ga = A
+        sb, Xb, db, _, gb = B
+        L = sb - sa
+        sm = sb - gb * L / (gb - ga) if ga != gb else 0.5 * (sa + sb)
+        lo, hi = min(sa, sb), max(sa, sb)
+        if not (lo < sm < hi):
+            sm = 0.5 * (sa + sb)
+        for trial in (sm, 0.5 * (sa + sb)):
+            t = (trial - sa) / L
+            h00, h10 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t
+            h01, h11 = -2 * t**3 + 3 * t**2, t**3 - t**2
+            guess = h00 * Xa + h10 * L * da + h01 * Xb + h11 * L * db
+            Xt, info = self._solve(guess, c0, float(c0 @ X0) + trial)
+            if info.converged:
+                ctx = self._context(Xt, self._tau_loc)
+                return (trial, Xt, dxds(ctx), ctx, g(ctx))
+        return None
+
     def _localise(self, ev: Event, j: int, r0: _Rec, r1: _Rec) -> tuple[float, SpecialPoint] | None:
         """Illinois (safeguarded secant) on ``ev.localiser`` along arclength."""
         s = self.settings
         self.stats["localisations"] += 1
         X0, tau0 = r0.X, r0.ctx.tangent
+        self._tau_loc = tau0
         c0 = self.w * tau0
         h = float(c0 @ (r1.X - X0))
         g = ev.localiser(r0.ctx, r1.ctx, j)
@@ -678,36 +737,29 @@ class Continuation:
         best = B if abs(gb) < abs(ga) else A
         s_prev = None
         t_start = time.perf_counter()
+        status = "max_iter"
         for _ in range(s.event_max_iter):
-            sa, Xa, da, _, ga = A
-            sb, Xb, db, _, gb = B
-            L = sb - sa
-            sm = sb - gb * L / (gb - ga) if ga != gb else 0.5 * (sa + sb)
-            lo, hi = min(sa, sb), max(sa, sb)
-            if not (lo < sm < hi):
-                sm = 0.5 * (sa + sb)
-            X = None
-            for trial in (sm, 0.5 * (sa + sb)):
-                t = (trial - sa) / L
-                h00, h10 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t
-                h01, h11 = -2 * t**3 + 3 * t**2, t**3 - t**2
-                guess = h00 * Xa + h10 * L * da + h01 * Xb + h11 * L * db
-                Xt, info = self._solve(guess, c0, float(c0 @ X0) + trial)
-                if info.converged:
-                    X, sm = Xt, trial
-                    break
-            if X is None:
+            try:
+                step = self._localise_step(A, B, X0, c0, g, dxds)
+            except ContfilError as exc:
+                # A failed trial solve (or eigen-solve) ends the iteration; the
+                # best point so far is reported with the reason.
+                status = f"error: {exc}"
                 break
-            ctx = self._context(X, tau0)
-            gm = g(ctx)
+            if step is None:
+                status = "corrector failed"
+                break
+            M_ = step
+            sm, gm = M_[0], M_[4]
             if not np.isfinite(gm):
+                status = "non-finite test value"
                 break
-            M_ = (sm, X, dxds(ctx), ctx, gm)
             if abs(gm) <= abs(best[4]):
                 best = M_
             if gm == 0.0:
+                status = "converged"
                 break
-            if gm * gb < 0:
+            if gm * B[4] < 0:
                 A, B = B, M_
             else:
                 # Illinois: halve the retained end's value to avoid stalling.
@@ -716,6 +768,7 @@ class Continuation:
             if abs(B[0] - A[0]) <= s.event_tol or (
                 s_prev is not None and abs(sm - s_prev) <= s.event_tol
             ):
+                status = "converged"
                 break
             s_prev = sm
         a, b = A[0], B[0]
@@ -730,6 +783,7 @@ class Continuation:
         data["arclength_from_left"] = float(sm)
         data["bracket"] = float(abs(b - a))
         data["tolerance"] = float(s.event_tol)
+        data["localisation"] = status
         data["localisation_time"] = time.perf_counter() - t_start
         pt = self._make_point(ctx, None, t_start, getattr(self.problem, "rhs_evals", 0))
         if pt.eigenvalues is None and ev.needs_stability:

@@ -305,10 +305,6 @@ class BranchPointEvent(Event):
         }
 
 
-def _pair_sort(vals: NDArray) -> NDArray:
-    return vals[np.argsort(-vals.real)]
-
-
 class HopfEvent(Event):
     """Hopf bifurcation(s) of equilibria: complex pairs crossing the axis.
 

@@ -58,6 +58,7 @@ def arnoldi_eigs(
     kmax: int | None = None,
     v0: Array | None = None,
     seed: int = 0,
+    space_dim: int | None = None,
 ) -> tuple[NDArray[np.complex128], NDArray[np.complex128], dict[str, Any]]:
     """Leading eigenvalues of a linear operator by Arnoldi (no restart).
 
@@ -73,6 +74,9 @@ def arnoldi_eigs(
         between consecutive iterations (or when the space is exhausted).
     kmax:
         Maximum Krylov dimension (default ``min(n, max(3 nev, 40))``).
+    space_dim:
+        Dimension of the invariant space the operator acts on (``n`` unless
+        the caller deflated a subspace); the Krylov space is exhausted there.
 
     Returns
     -------
@@ -83,8 +87,9 @@ def arnoldi_eigs(
         change of the leading values) and ``residuals`` (Ritz residual
         norms ``|M x - μ x|`` of the returned pairs).
     """
-    nev = max(1, min(int(nev), n))
-    kmax = min(n, int(kmax) if kmax is not None else max(3 * nev, 40))
+    dim = n if space_dim is None else int(space_dim)
+    nev = max(1, min(int(nev), dim))
+    kmax = min(dim, int(kmax) if kmax is not None else max(3 * nev, 40))
     kmax = max(kmax, 1)
     rng = np.random.default_rng(seed)
     v = rng.standard_normal(n) if v0 is None else np.array(v0, dtype=float)
@@ -109,11 +114,11 @@ def arnoldi_eigs(
         k = j + 1
         vals = np.linalg.eigvals(H[:k, :k])
         lead = vals[_sort_leading(vals)][: min(nev, k)]
-        if k >= min(nev, n):
+        if k >= nev:
             change = _max_change(lead, prev) if prev.size >= lead.size else np.inf
         prev = lead
         scale = max(1.0, float(np.max(np.abs(H[: k + 1, :k]))))
-        if hn <= 1e-13 * scale or k == n:
+        if hn <= 1e-13 * scale or k == dim:
             converged = True  # invariant subspace found: Ritz values are exact
             change = 0.0
             break
@@ -266,8 +271,7 @@ def floquet_multipliers(
         m = n - rank
         if m > 0:
             nv, Y, info = arnoldi_eigs(mvp, n, nev=min(nev, m), tol=tol,
-                                       kmax=min(m, kmax if kmax is not None else max(3 * nev, 40)),
-                                       v0=start)
+                                       kmax=kmax, v0=start, space_dim=m)
             k = info["iterations"]
             W = np.column_stack(raw[:k])
             MY = W @ info["coeffs"]

@@ -203,7 +203,7 @@ def solve_whirling(model: FilamentModel, dh: dict[str, Any], eps: float,
     z0 = np.concatenate([u0, [ws["omega_rw"]]])
     x_star = np.concatenate([np.zeros_like(u0), [ws["omega_rw"]]])
     x, p, info = solve_with_amplitude(pb, z0, dh["p"], x_star,
-                                      np.concatenate([ws["d"], [0.0]]), eps, tol=1e-10)
+                                      np.concatenate([ws["d"], [0.0]]), eps, tol=1e-9)
     for _ in range(polish):
         r = pb.residual(x, p)
         if np.max(np.abs(r)) < 1e-13:

@@ -34,7 +34,9 @@ kernels, whose out-of-plane components vanish on planar states.)
 
 Solver: inverse ("good") Broyden, see :mod:`contfil.models.filament.broyden`,
 started from the linear extrapolation ``2 z^k - z^{k-1}`` of increments and
-loads. ``H0 = J0^{-1}`` comes from an analytic approximate Jacobian
+loads (first step: the multipliers of the continuous constraint problem at
+the initial state and ``u = dt Omega``, i.e. an explicit Euler guess).
+``H0 = J0^{-1}`` comes from an analytic approximate Jacobian
 (:func:`~contfil.models.filament.kernels.bdf2_solver.approx_jacobian`):
 
 - ``jacobian="self"``: self-mobilities only, the paper's choice. With RPY
@@ -76,6 +78,11 @@ from contfil.errors import ConvergenceError, NonFiniteError
 
 from . import broyden as _br
 from .kernels import bdf2_solver as _k
+from .kernels import constraints as _kc
+from .kernels import elastic as _elastic
+from .kernels import forces as _forces
+from .kernels import rpy as _rpy
+from .kernels import squirmer as _sq
 from .kernels.geometry import frames_from_state, positions, state_from_frames, tangents
 from .scene import Scene
 
@@ -327,12 +334,47 @@ class BDF2Stepper:
         self._q[:] = frames_from_state(U)
         self._x[:] = positions(tangents(self._q), self.phys.dL)
         self._xm1[:] = self._x
-        self._zp[:] = 0.0
-        self._zpm1[:] = 0.0
+        self._zp[:] = self._consistent_start()
+        self._zpm1[:] = self._zp
         self.k = 0
         self.time = float(t0)
         self._info[:] = 0.0
         self._ready = True
+
+    def _consistent_start(self) -> Array:
+        """Predictor of the first step: ``[dt Omega, Lam, Fc, Tc]`` at the start.
+
+        The loads are the Lagrange multipliers of the continuous problem at
+        the initial frames (the same constraint solve as the model's
+        ``rhs``), so the backward-Euler step starts from an explicit-Euler
+        guess; starting from zero loads diverges for strong actuation.
+        """
+        ph = self.phys
+        N = ph.N
+        q = self._q
+        t = tangents(q)
+        X = self._x
+        if ph.hydro == "rpy":
+            Mob = _rpy.rpy_mobility(X, ph.a, ph.eta)
+        else:
+            Mob = _rpy.local_mobility(N, ph.a, ph.eta)
+        FA = _forces.follower_forces(t, ph.wff, ph.f)
+        if ph.B1 != 0.0:
+            Vsf = _sq.squirmer_velocity(X, t, ph.wsf, ph.a, ph.B1, ph.eta)
+        else:
+            Vsf = np.zeros((N, 3))
+        TE = _elastic.elastic_torques(q, ph.dL, ph.KB, ph.KT)
+        lam, vel = _kc.solve_constraints(t, Mob, FA, TE, Vsf, ph.dL)
+        z = np.zeros(6 * N)
+        Om = vel[3 * N :].reshape(N, 3)
+        z[: 3 * (N - 1)] = 0.0 * Om[1:].ravel()
+        z[3 * (N - 1) :] = lam
+        if not np.all(np.isfinite(z)):
+            raise NonFiniteError("BDF2Stepper.reset: non-finite loads at the initial state")
+        # planar runs: keep only the in-plane unknowns (the rest vanish anyway)
+        zr = np.zeros(6 * N)
+        zr[self._zmap] = z[self._zmap]
+        return zr
 
     @property
     def state(self) -> Array:
@@ -508,6 +550,9 @@ def trajectory(
 ) -> Trajectory:
     """Integrate like :func:`flow` and record states every ``out_every`` steps.
 
+    The initial and the final state are always included (the last interval
+    is shorter when ``out_every`` does not divide the number of steps).
+
     Returns a :class:`Trajectory`: times (initial time included), states
     (model layout), observables (``tip`` (n_out, 3), ``tip_angle`` (the
     azimuth of the free end), ``tip_height``, ``bending_energy``) and per-step
@@ -526,6 +571,10 @@ def trajectory(
     diag, rec_q = st._advance(n, rec_every=out_every)
     allq = np.concatenate([q0[None], rec_q], axis=0)
     times = np.arange(allq.shape[0]) * out_every * st.dt
+    if n % out_every:
+        # the final state is always recorded, at its own time
+        allq = np.concatenate([allq, st.frames[None]], axis=0)
+        times = np.append(times, n * st.dt)
     states = []
     obs: dict[str, list[Any]] = {}
     for qq in allq:

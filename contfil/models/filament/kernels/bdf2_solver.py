@@ -50,6 +50,8 @@ P_DL, P_A, P_ETA, P_KB, P_KT, P_F, P_B1 = 0, 1, 2, 3, 4, 5, 6
 # diag columns per step
 D_ITERS, D_RES, D_CONSTR, D_KIN, D_REFRESH = 0, 1, 2, 3, 4
 N_DIAG = 5
+# a Broyden step multiplying the residual by more than this is halved
+GROWTH = 100.0
 # opts layout (int64)
 O_HYDRO, O_JMODE, O_REUSE, O_MAXIT, O_MAXREF, O_REUSE_LIMIT = 0, 1, 2, 3, 4, 5
 
@@ -607,9 +609,11 @@ def _solve_step(
     """Inverse-Broyden solve of one step, ``z`` and ``H`` updated in place.
 
     ``H`` is (re)built from ``J0`` at the predictor unless ``have_H`` (an
-    inverse carried over from the previous step). When the residual has not
-    halved for 6 iterations, or a trial point is non-finite, ``J0`` is
-    rebuilt at the current iterate (at most ``opts[O_MAXREF]`` times).
+    inverse carried over from the previous step). A Broyden step that
+    multiplies the residual by more than ``GROWTH`` is halved (up to 6 times). When
+    the residual has not halved for 6 iterations, or a trial point is
+    non-finite, ``J0`` is rebuilt at the current iterate (at most
+    ``opts[O_MAXREF]`` times).
     Returns (status, iterations, final residual inf-norm, J0 builds).
     """
     hydro, jmode = opts[O_HYDRO], opts[O_JMODE]
@@ -647,6 +651,36 @@ def _solve_step(
         )
         it += 1
         resn = max_abs(rn)
+        # safeguard far from the solution: halve a step that multiplies the
+        # residual by more than GROWTH (at most 6 times; each costs a
+        # residual). Milder growth is left alone: early Broyden steps with a
+        # crude J0 may grow the residual while they collect secant information.
+        nback = 0
+        while (not np.isfinite(resn) or resn > GROWTH * res) and nback < 6:
+            for i in range(nz):
+                s[i] *= 0.5
+                z[i] -= s[i]
+            residual(
+                z,
+                rn,
+                qk,
+                xk,
+                xkm1,
+                uk,
+                coef,
+                phys,
+                wff,
+                wsf,
+                hydro,
+                zmap,
+                rmap,
+                scale,
+                q,
+                X,
+                rfull,
+            )
+            resn = max_abs(rn)
+            nback += 1
         if not np.isfinite(resn):
             # undo the step and restart from a fresh J0 if allowed
             for i in range(nz):
