@@ -16,6 +16,7 @@ Usage::
     python benchmarks/bench_cycles.py            # both modes
     python benchmarks/bench_cycles.py --mode fd --points 6
     python benchmarks/bench_cycles.py --filament   # tip-FF whirling from the double Hopf
+    python benchmarks/bench_cycles.py --beating    # tip-FF beating (planar solve), minutes
 """
 
 from __future__ import annotations
@@ -151,6 +152,64 @@ def bench_filament_whirling(points: int, f_max: float, shoot: bool) -> None:
               f"{np.round(np.exp(pt.eigenvalues[:4] * pt.extra['period']), 6)}")
 
 
+def bench_filament_beating(points: int) -> None:
+    """Tip FF beating: standing wave from the double Hopf, solved in the planar
+    subspace (19 unknowns + T), stability in the full 3-D model (57). Both run on
+    the default Radau flow of ``rhs`` (the model's own stepper is bypassed)."""
+    from contfil.engine.cycle_switching import standing_wave_from_double_hopf
+    from contfil.engine.equilibrium import EquilibriumProblem
+    from contfil.models.filament.model import FilamentModel
+    from contfil.models.protocol import InvariantSubspace, Symmetries
+
+    scene = {"name": "tip_ff", "geometry": {"N": 20, "dL_over_a": 2.2, "dimension": "3d"},
+             "elasticity": {"KB": 1.0, "KT": 1.0}, "hydrodynamics": {"type": "rpy", "eta": 1.0},
+             "actuation": {"type": "follower_force", "profile": "tip", "f": 30.0},
+             "boundary": {"base": "clamped"}}
+    m = FilamentModel(scene)
+
+    class RhsOnly:
+        def __init__(self, mod, syms) -> None:
+            self.name, self.dim, self.param_names = mod.name + "_rhs", mod.dim, mod.param_names
+            self.symmetries, self._m = syms, mod
+
+        def default_params(self):
+            return self._m.default_params()
+
+        def initial_state(self, p):
+            return self._m.initial_state(p)
+
+        def rhs(self, u, p):
+            return self._m.rhs(u, p)
+
+        def jacobian(self, u, p):
+            return self._m.jacobian(u, p)
+
+        def observables(self, u, p):
+            return self._m.observables(u, p)
+
+    sub = m.symmetries.invariant_subspaces["planar_xz"]
+    red = sub.reduced_model()
+    red_w = RhsOnly(red, red.symmetries)
+    syms = Symmetries(continuous=m.symmetries.continuous, reflections=m.symmetries.reflections,
+                      invariant_subspaces={"planar_xz": InvariantSubspace(
+                          "planar_xz", sub.embed, sub.project, lambda: red_w)})
+    M = RhsOnly(m, syms)
+    t0 = time.perf_counter()
+    eq = Continuation(EquilibriumProblem(M, "f"), np.zeros(m.dim), 30.0,
+                      ContinuationSettings(ds=2.0, ds_max=5.0, max_points=5, p_max=40.0)).run()
+    dh = next(sp for sp in eq.special_points if sp.kind == "double_hopf")
+    start = standing_wave_from_double_hopf(M, "f", dh, eps=0.05, subspace="planar_xz", steps=80)
+    print(f"\n== filament tip FF beating (planar solve, 3-D Floquet): double Hopf f = "
+          f"{dh.point.p:.6f}; first point f = {start.p0:.6f}")
+    run = start.continuation(ContinuationSettings(ds=0.5, ds_max=2.0, max_points=points,
+                                                  p_max=60.0, max_angle=0.8), events=[])
+    print(f"{'f':>10} {'T':>9} {'1/T':>8} {'unstable':>8} {'trivial':>7}  leading multipliers")
+    for pt in run:
+        print(f"{pt.p:10.4f} {pt.extra['period']:9.6f} {1 / pt.extra['period']:8.4f} "
+              f"{pt.n_unstable:8d} {int(pt.trivial.sum()):7d}  {np.round(pt.eigenvalues[:4], 5)}")
+    print(f"[{time.perf_counter() - t0:.1f} s]")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--mode", choices=["exact", "fd", "both"], default="both")
@@ -160,7 +219,12 @@ def main() -> None:
                     help="tip-FF whirling branch (needs contfil.models.filament)")
     ap.add_argument("--f-max", type=float, default=200.0)
     ap.add_argument("--shoot", action="store_true", help="filament: shooting cross-check")
+    ap.add_argument("--beating", action="store_true",
+                    help="tip-FF beating (standing wave, planar solve; slow, minutes)")
     a = ap.parse_args()
+    if a.beating:
+        bench_filament_beating(min(a.points, 6))
+        return
     if a.filament:
         bench_filament_whirling(max(a.points, 40), a.f_max, a.shoot)
         return

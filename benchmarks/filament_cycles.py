@@ -58,7 +58,8 @@ FIG = ROOT / "docs" / "figures"
 # bounds of the runs; the runs stop earlier once the special point is passed.
 MODELS: dict[str, dict[str, Any]] = {
     "tip_ff": {"bracket": (30.0, 36.0), "w_pmax": 400.0, "b_pmax": 250.0, "label": "f"},
-    "dis_ff": {"bracket": (3.0, 4.5), "w_pmax": 60.0, "b_pmax": 30.0, "label": "f"},
+    "dis_ff": {"bracket": (3.0, 4.5), "w_pmax": 60.0, "b_pmax": 30.0, "label": "f",
+               "w_dsmax": 1.0},
     "tip_sf": {"bracket": (220.0, 250.0), "w_pmax": 4000.0, "b_pmax": 2000.0, "label": "b1"},
     "dis_sf": {"bracket": (55.0, 75.0), "w_pmax": 2500.0, "b_pmax": 1000.0, "label": "b1"},
 }
@@ -76,7 +77,8 @@ def whirling(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any],
     first = {"p": p1, "omega": float(x1[-1]), "residual": info["residual"],
              "side": float(np.sign(p1 - ps)), "amp_coeff": (p1 - ps) / 0.05**2}
     p_max = 1.5 * ps if quick else cfg["w_pmax"]
-    st = ContinuationSettings(ds=0.01 * ps, ds_max=0.06 * ps, ds_min=1e-6 * ps,
+    st = ContinuationSettings(ds=0.01 * ps, ds_max=cfg.get("w_dsmax", 0.06 * ps),
+                              ds_min=1e-6 * ps,
                               max_points=30 if quick else 400, p_max=p_max)
     run = Continuation(pb, x1, p1, st)
     pts, after = [], None
@@ -94,7 +96,8 @@ def whirling(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any],
         if run.branch.special_points and after is None:
             after = len(pts)
         # stop a little past the first special point (the torus), keep >= 3 more points
-        if after is not None and len(pts) > after + 3 and pt.p > 1.1 * run.branch.special_points[0].point.p:
+        p_sp = run.branch.special_points[0].point.p if after is not None else np.inf
+        if after is not None and len(pts) > after + 3 and pt.p > 1.1 * p_sp:
             break
     specials = []
     for sp in run.branch.special_points:
@@ -137,7 +140,8 @@ def whirling_shooting(model: FilamentModel, wres: dict[str, Any], steps: int,
     mu_sh = st.values[~st.trivial]
     # match each shooting multiplier to the nearest co-moving prediction
     match = [float(np.min(np.abs(mu_rw - z))) for z in mu_sh[:6]]
-    return {"p": q["p"], "steps": steps, "omega_comoving": q["omega"], "omega_shooting": out["omega"],
+    return {"p": q["p"], "steps": steps, "omega_comoving": q["omega"],
+            "omega_shooting": out["omega"],
             "rel_omega_diff": abs(out["omega"] - q["omega"]) / abs(q["omega"]),
             "state_diff": float(np.linalg.norm(out["u"] - u) / np.linalg.norm(u)),
             "newton_residual": out["newton"]["residual"],
@@ -172,8 +176,9 @@ def mean_energy(planar_model: FilamentModel, phi: np.ndarray, p: float, T: float
 
 
 def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick: bool,
-            steps: int) -> dict[str, Any]:
+            steps: int, budget: float = np.inf) -> dict[str, Any]:
     t0 = time.perf_counter()
+    stop = None
     ps = dh["p"]
     fm = FixedStepFlow(model, steps)
     pb, x1, p1, info = solve_beating(fm, dh, eps=0.05)
@@ -182,14 +187,14 @@ def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick
              "newton_iterations": info["iterations"]}
     planar = pb.solve_model.base
     p_max = 1.15 * ps if quick else cfg["b_pmax"]
-    # Arclength weights: a step of 0.1 p* in p counts as much as one of 0.4
+    # Arclength weights: a step of 0.25 p* in p counts as much as one of 1.0
     # (2-norm) in the reduced state, so steps stay small in amplitude near
     # onset (vertical branch) and large in p later. ds_max is that step.
     n = pb.n
     ratio = 16.0 / (n * ps**2)  # (1 - theta)/theta
     theta = 1.0 / (1.0 + ratio)
-    dsm = float(np.sqrt(theta / n) * 0.4)
-    st = ContinuationSettings(ds=0.25 * dsm, ds_max=dsm, ds_min=1e-4 * dsm, theta=theta,
+    dsm = float(np.sqrt(theta / n) * cfg.get("b_dx", 1.0))
+    st = ContinuationSettings(ds=0.1 * dsm, ds_max=dsm, ds_min=1e-4 * dsm, theta=theta, grow=2.0,
                               max_points=3 if quick else 60, p_max=p_max,
                               event_tol=float(np.sqrt(1 - theta)) * 1e-4 * ps,
                               event_max_iter=12, newton_max_iter=8, verbose=True)
@@ -216,6 +221,9 @@ def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick
             after = len(pts)
         if after is not None and len(pts) > after + 2:
             break
+        if time.perf_counter() - t0 > budget:
+            stop = "wall-time budget"
+            break
     specials = []
     for sp in run.branch.special_points:
         d = sp.data
@@ -229,14 +237,16 @@ def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick
             rec["multiplier"] = _c(d["multiplier"])
         if sp.point.eigenvalues is not None and sp.point.trivial is not None:
             rec["multipliers"] = [_c(z) for z in sp.point.eigenvalues[~sp.point.trivial][:6]]
-        rec["x"] = np.concatenate([np.asarray(sp.point.u)[1::3], [sp.point.extra.get("period", np.nan)]]).tolist()
+        Tsp = sp.point.extra.get("period", np.nan)
+        rec["x"] = np.concatenate([np.asarray(sp.point.u)[1::3], [Tsp]]).tolist()
         specials.append(rec)
     return {"first": first, "points": pts, "special": specials, "steps": steps,
             "wall": time.perf_counter() - t0, "flows_planar": pb.solve_model.flow_calls,
-            "flows_3d": pb.model.flow_calls, "stop": run.stop_reason}
+            "flows_3d": pb.model.flow_calls, "stop": stop or run.stop_reason}
 
 
-def dt_study(model: FilamentModel, sp: dict[str, Any], steps_list: list[int]) -> list[dict[str, Any]]:
+def dt_study(model: FilamentModel, sp: dict[str, Any],
+             steps_list: list[int]) -> list[dict[str, Any]]:
     """Re-solve the pitchfork orbit at fixed p with other step counts; out-of-plane multiplier."""
     from contfil.engine.hookstep import newton_hookstep
     from contfil.engine.shooting import PeriodicOrbitProblem
@@ -249,8 +259,8 @@ def dt_study(model: FilamentModel, sp: dict[str, Any], steps_list: list[int]) ->
         fm = FixedStepFlow(model, steps)
         pb = PeriodicOrbitProblem(fm, model.param_names[0], np.array([p]), subspace="planar_xz")
         pb.set_reference(x0[:-1], p)
-        x, info = newton_hookstep(lambda z: pb.residual(z, p), x0, jvp=lambda z, v: pb.jvp(z, p, v),
-                                  tol=1e-10)
+        x, info = newton_hookstep(lambda z, pb=pb: pb.residual(z, p), x0,
+                                  jvp=lambda z, v, pb=pb: pb.jvp(z, p, v), tol=1e-10)
         st = pb.stability(x, p)
         ev = OutOfPlanePitchforkEvent()
         c, _ = ev._cands(st)
@@ -292,7 +302,8 @@ def _save(name: str, part: str, quick: bool, data: dict[str, Any]) -> None:
     print(f"[{name}] wrote {p}", flush=True)
 
 
-def run_model(name: str, parts: list[str], quick: bool, steps: int) -> None:
+def run_model(name: str, parts: list[str], quick: bool, steps: int,
+              budget: float = np.inf) -> None:
     cfg = MODELS[name]
     model = FilamentModel(ROOT / "branches" / f"{name}.toml")
     t0 = time.perf_counter()
@@ -318,7 +329,7 @@ def run_model(name: str, parts: list[str], quick: bool, steps: int) -> None:
         print(f"[{name}] shooting check: {sh}")
         _save(name, f"shoot{steps}", quick, sh)
     if "beating" in parts:
-        b = beating(model, dh, cfg, quick, steps)
+        b = beating(model, dh, cfg, quick, steps, budget)
         b["double_hopf"] = dhr
         for s in b["special"]:
             print(f"[{name}] beating {s['kind']} ({s['event']}) at {s['p']}, T = {s['T']}, "
@@ -331,7 +342,8 @@ def run_model(name: str, parts: list[str], quick: bool, steps: int) -> None:
                                     if s.get("event") == "out_of_plane_pitchfork"]
         if not sps:
             raise SystemExit("no out-of-plane pitchfork stored: run --part beating first")
-        _save(name, "dt", quick, {"pitchfork": sps[0], "runs": dt_study(model, sps[0], [200, 400, 800])})
+        runs = dt_study(model, sps[0], [200, 400, 800])
+        _save(name, "dt", quick, {"pitchfork": sps[0], "runs": runs})
 
 
 def plot() -> None:
@@ -378,19 +390,22 @@ def plot() -> None:
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--model", choices=list(MODELS), default="tip_ff")
     ap.add_argument("--part", default="whirling,shoot,beating,dt",
                     help="comma list of whirling, shoot, beating, dt")
     ap.add_argument("--quick", action="store_true", help="short smoke run")
     ap.add_argument("--steps", type=int, default=400, help="BDF2 steps per period (paper: 400)")
+    ap.add_argument("--budget", type=float, default=np.inf,
+                    help="wall-time budget (s) of the beating continuation")
     ap.add_argument("--plot", action="store_true", help="only draw figures from the JSON results")
     a = ap.parse_args()
     FIG.mkdir(parents=True, exist_ok=True)
     if a.plot:
         plot()
         return
-    run_model(a.model, a.part.split(","), a.quick, a.steps)
+    run_model(a.model, a.part.split(","), a.quick, a.steps, a.budget)
 
 
 if __name__ == "__main__":

@@ -108,3 +108,38 @@ def test_bratu_sparse_and_dense_jacobians_agree():
     np.testing.assert_allclose(
         e.model.jacobian(u, p), _fd_jac(e.model.rhs, u, p), rtol=1e-6, atol=1e-4
     )
+
+
+def test_chafee_infante_branch_points_are_laplacian_eigenvalues():
+    from contfil.models.catalog import chafee_infante
+
+    e = chafee_infante(30)
+    m = e.model
+    J0 = m.jacobian(np.zeros(30), np.array([0.0]))
+    ev = np.sort(np.linalg.eigvalsh(-J0))
+    np.testing.assert_allclose(ev, e.exact["bps"], rtol=1e-12)
+    assert abs(e.exact["bps"][0] - 1.0) < e.exact["h"] ** 2  # continuum k^2 = 1, O(h^2)
+    u = np.sin(e.model.x) * 0.3
+    p = np.array([2.0])
+    np.testing.assert_allclose(m.jacobian_sparse(u, p).toarray(), m.jacobian(u, p))
+    np.testing.assert_allclose(m.jacobian(u, p), _fd_jac(m.rhs, u, p), rtol=1e-6, atol=1e-4)
+    # the critical direction is an eigenvector of the trivial-branch Jacobian
+    v = e.exact["mode"](2)
+    np.testing.assert_allclose(J0 @ v, -e.exact["bps"][1] * v, atol=1e-9)
+
+
+def test_brusselator_1d_uniform_mode_is_the_ode_and_jacobians_agree():
+    from contfil.models.catalog import brusselator_1d
+
+    e = brusselator_1d(N=12, A=2.0, d=0.1)
+    m = e.model
+    rng = np.random.default_rng(3)
+    u = e.u0 + 0.1 * rng.normal(size=24)
+    p = np.array([2.0, 3.0])
+    np.testing.assert_allclose(m.jacobian_sparse(u, p).toarray(), _fd_jac(m.rhs, u, p), atol=1e-6)
+    assert np.max(np.abs(m.rhs(e.u0, np.array([2.0, 1.0])))) < 1e-13  # homogeneous state
+    J = m.jacobian(np.concatenate([2.0 * np.ones(12), 2.5 * np.ones(12)]), np.array([2.0, 5.0]))
+    ev = np.linalg.eigvals(J)
+    lead = ev[np.argsort(-ev.real)][:2]
+    np.testing.assert_allclose(np.sort(lead.imag), [-2.0, 2.0], atol=1e-10)
+    np.testing.assert_allclose(lead.real, 0.0, atol=1e-10)

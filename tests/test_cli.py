@@ -97,6 +97,11 @@ def test_run_refuses_existing_directory_and_resumes_complete_run(
         ("[model]\nname = 'z2_pitchfork'\n[continuation]\nrange = [0, 1]\nparameter = 'k'\n",
          "continuation.parameter: model 'z2_pitchfork' has no parameter 'k'"),
         ("not toml [", "invalid TOML"),
+        ("[model]\nname = 'z2_pitchfork'\n[continuation]\nrange = [0, 1]\n"
+         "initial_state = [0.0, 0.0, 0.0]\n",
+         "continuation.initial_state: expected 2 numbers, got 3"),
+        ("[model]\nname = 'z2_pitchfork'\nparams = { nu = 1.0 }\n[continuation]\n"
+         "range = [0, 1]\n", "model.params.nu: model 'z2_pitchfork' has no such parameter"),
     ],
 )
 def test_bad_spec_exit_code_2_one_line(tmp_path: Path, capsys, text: str, needle: str) -> None:

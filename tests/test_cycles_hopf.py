@@ -94,9 +94,13 @@ def test_shooting_on_a_models_own_stepper_by_finite_differences():
         name, dim, param_names, symmetries = "stepped", 2, base.param_names, base.symmetries
         default_params, initial_state, rhs = base.default_params, base.initial_state, base.rhs
         observables = base.observables
-        flow = staticmethod(rf.flow)
 
-    pb = PeriodicOrbitProblem(Stepped(), "mu", dense_threshold=0)
+        @staticmethod
+        def flow(u, p, T, *, steps):  # a stepper that insists on its resolution
+            assert steps == 50
+            return rf.flow(u, p, T)
+
+    pb = PeriodicOrbitProblem(Stepped(), "mu", dense_threshold=0, flow_kwargs={"steps": 50})
     assert not pb.ops.exact_tangent
     ex = exact_cycle(0.5, b=0.3)
     x, info = newton_hookstep(lambda x: pb.residual(x, 0.5), np.array([0.9, 0.1, 5.0]),

@@ -265,3 +265,34 @@ def test_restart_from_any_stored_point() -> None:
     assert steps[0].point.p == g.point("B1", 5).p
     assert np.allclose(np.abs(steps[-1].point.u), np.abs(ref), atol=1e-9)
     assert steps[-1].point.p != steps[0].point.p
+
+
+def test_mirror_whirling_waves_are_one_state_up_to_symmetry() -> None:
+    """The two rotating waves born at the filament's O(2) double Hopf turn in
+    opposite senses; they are mirror images, hence one state of the graph."""
+    from pathlib import Path
+
+    from contfil.engine.branch import Branch
+    from contfil.engine.continuation import Continuation
+    from contfil.engine.cycle_switching import rotating_wave_from_double_hopf
+    from contfil.graph.identity import same_branch
+    from contfil.models.filament.model import FilamentModel
+    from contfil.models.filament.scene import load_scene
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml")
+    m = FilamentModel(scene.replace(N=6))
+    pb = EquilibriumProblem(m, "f", np.array([20.0]))
+    run = Continuation(pb, np.zeros(m.dim), 20.0,
+                       ContinuationSettings(ds=1.0, ds_max=4.0, p_min=20.0, p_max=60.0))
+    br = run.run()
+    (dh,) = [sp for sp in br.special_points if sp.kind == "double_hopf"]
+    waves = []
+    for which in (0, 1):
+        st = rotating_wave_from_double_hopf(m, "f", dh, which=which)
+        c = Continuation(st.problem, st.x0, st.p0,
+                         ContinuationSettings(ds=0.5, ds_max=1.0, max_points=6), tangent=st.tangent)
+        waves.append(Branch("rotating_wave", "f", list(c)))
+    a, b = waves
+    assert np.sign(a.points[-1].extra["omega"]) == -np.sign(b.points[-1].extra["omega"])
+    assert not same_branch(a, b)  # different states as plain vectors ...
+    assert same_branch(a, b, m.symmetries)  # ... one state up to a mirror

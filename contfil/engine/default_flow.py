@@ -35,7 +35,7 @@ from contfil.errors import ConvergenceError, NonFiniteError
 
 Array = NDArray[np.float64]
 
-__all__ = ["RadauFlow", "FlowOps", "flow_ops"]
+__all__ = ["RadauFlow", "FlowOps", "flow_ops", "single_threaded_blas"]
 
 _S6 = np.sqrt(6.0)
 RADAU_A = np.array(
@@ -328,10 +328,20 @@ class FlowOps:
     calls of the time-stepper (a finite-difference ``jvp`` costs one; an
     exact tangent of the default flow costs none once the base trajectory is
     cached, and ``tangent_evals`` counts those separately).
+
+    ``flow_kwargs`` are passed to a model's own ``flow`` (e.g. ``{"steps":
+    1000}`` for a stepper that wants its resolution); ``fd_rel`` sets the
+    finite-difference increment (raise it for a stepper whose result is only
+    accurate to its nonlinear-solver tolerance).
     """
 
     def __init__(
-        self, model: Any, steps: int = 100, fd_rel: float = 1e-7, param_index: int | None = None
+        self,
+        model: Any,
+        steps: int = 100,
+        fd_rel: float = 1e-7,
+        param_index: int | None = None,
+        flow_kwargs: dict[str, Any] | None = None,
     ) -> None:
         self.model = model
         self.param_index = param_index
@@ -341,7 +351,8 @@ class FlowOps:
         own = getattr(model, "flow", None)
         self.radau: RadauFlow | None = None
         if callable(own):
-            self._flow = own
+            kw = dict(flow_kwargs or {})
+            self._flow = (lambda u, p, T: own(u, p, T, **kw)) if kw else own
             self._flow_jvp = getattr(model, "flow_jvp", None)
         else:
             jac = getattr(model, "jacobian", None)

@@ -107,6 +107,7 @@ class Problem(ABC):
     def accept(self, x: Array, p: float) -> None:
         """Hook called when a point is accepted (e.g. to move phase-condition
         references). Default: nothing."""
+        return None
 
     @abstractmethod
     def stability(self, x: Array, p: float) -> Stability:

@@ -241,12 +241,15 @@ def rotating_wave_by_shooting(
     steps: int = 100,
     tol: float = 1e-10,
     nev: int = 13,
+    flow_kwargs: dict[str, Any] | None = None,
+    fd_rel: float = 1e-7,
 ) -> dict[str, Any]:
     """Re-solve a rotating wave as a relative periodic orbit at fixed ``T``.
 
     Unknowns ``(u, θ)``; residual ``(exp(θL) φ_T(u) - u, <L̂u_ref, u - u_ref>)``
     with ``u_ref = u``, solved by :func:`newton_hookstep` from ``θ = -ω T``.
     The system is regular when the zero eigenvalue of ``f_u - ωL`` is simple.
+    ``flow_kwargs``/``fd_rel`` go to :class:`FlowOps` (a model's own stepper).
 
     Returns
     -------
@@ -260,7 +263,7 @@ def rotating_wave_by_shooting(
     gp = sym.period if sym.period else 2 * np.pi
     if T is None:
         T = gp / abs(omega)
-    ops = FlowOps(model, steps=steps)
+    ops = FlowOps(model, steps=steps, flow_kwargs=flow_kwargs, fd_rel=fd_rel)
     params = np.asarray(params, dtype=float)
     u_ref = np.array(u, dtype=float, copy=True)
     l_ref = L @ u_ref / np.linalg.norm(L @ u_ref)

@@ -83,6 +83,9 @@ class PeriodicOrbitProblem(Problem):
         means of the scalar observables over ``k`` equal sub-intervals of the
         period, e.g. the period-mean bending energy of a diagram); costs ``k``
         extra flow calls of length ``T/k`` per point.
+    flow_kwargs, fd_rel:
+        Passed to :class:`~contfil.engine.default_flow.FlowOps` (keywords of a
+        model's own ``flow``; finite-difference increment).
     """
 
     kind = PERIODIC_ORBIT
@@ -102,6 +105,8 @@ class PeriodicOrbitProblem(Problem):
         floquet_kmax: int | None = None,
         dense_threshold: int = 40,
         period_means: int = 0,
+        flow_kwargs: dict[str, Any] | None = None,
+        fd_rel: float = 1e-7,
     ) -> None:
         self.model = model
         self.param = param
@@ -131,7 +136,8 @@ class PeriodicOrbitProblem(Problem):
                     f"as {model.name!r}"
                 )
         self.steps = int(steps)
-        self.ops = FlowOps(self.solve_model, steps=self.steps, param_index=self.ip)
+        self._flow_kw = {"flow_kwargs": flow_kwargs, "fd_rel": fd_rel}
+        self.ops = FlowOps(self.solve_model, steps=self.steps, param_index=self.ip, **self._flow_kw)
         self._full_ops: FlowOps | None = None if self.subspace is not None else self.ops
         self.dim = int(self.solve_model.dim)
         self.n = self.dim + self.n_extra
@@ -149,7 +155,7 @@ class PeriodicOrbitProblem(Problem):
     @property
     def full_ops(self) -> FlowOps:
         if self._full_ops is None:
-            self._full_ops = FlowOps(self.model, steps=self.steps)
+            self._full_ops = FlowOps(self.model, steps=self.steps, **self._flow_kw)
         return self._full_ops
 
     @property

@@ -369,8 +369,9 @@ def hopf_normal_form(
     Derivatives of ``G`` by central differences with step ``h`` along unit
     vectors (error ``O(h^2)``, round-off ``O(eps/h^3)``). Returns a dict with
     ``omega``, ``dlambda_dp``, and ``c1``, ``l1``, ``supercritical`` (simple
-    Hopf) or ``A``, ``B``, ``q1``, ``q2``, ``m`` and the four booleans above
-    (double Hopf).
+    Hopf) or ``A``, ``B``, ``q1``, ``q2`` (unit rotating modes), ``y1``, ``y2``
+    (left vectors, ``y_i^T q_j = delta_ij``, so ``z_i ~ y_i^T (u - u*)``),
+    ``m`` and the four booleans above (double Hopf).
     """
     if special_point.kind not in (HOPF, DOUBLE_HOPF):
         raise ContfilError(f"hopf_normal_form needs a Hopf point, got {special_point.kind!r}")
@@ -437,6 +438,8 @@ def hopf_normal_form(
         B=complex(Bcoef),
         q1=q1,
         q2=q2,
+        y1=Yt[0].copy(),
+        y2=Yt[1].copy(),
         m=mu[order],
         rotating_supercritical=a < 0,
         rotating_stable=bool(a < 0 and b < a),

@@ -131,12 +131,25 @@ class Progress:
         el = now - self.t0
         line = (f"{task} {kind:<14} {param}={p:<12.6g} points={n_points:<5d} "
                 f"events={n_events:<3d} {int(el // 60):02d}:{el % 60:05.2f}")
-        self.stream.write("\r" + line[:120].ljust(80))
+        line = line[:120]
+        # Pad to the longest line so far: a shorter line must erase a longer one.
+        self._width = max(getattr(self, "_width", 0), len(line))
+        self.stream.write("\r" + line.ljust(self._width))
+        self.stream.flush()
+
+    def status(self, text: str) -> None:
+        """Replace the status line by ``text`` (e.g. while switching)."""
+        if not self.enabled:
+            return
+        el = time.monotonic() - self.t0
+        self._last = time.monotonic()
+        self._width = max(getattr(self, "_width", 0), len(text) + 10)
+        self.stream.write("\r" + f"{text} {int(el // 60):02d}:{el % 60:05.2f}".ljust(self._width))
         self.stream.flush()
 
     def message(self, text: str) -> None:
         if self.enabled:
-            self.stream.write("\r" + " " * 80 + "\r" + text + "\n")
+            self.stream.write("\r" + " " * getattr(self, "_width", 80) + "\r" + text + "\n")
             self.stream.flush()
 
     def close(self) -> None:
@@ -240,14 +253,18 @@ class Explorer:
             for sp in branch.special_points:
                 sid, sp_new = self.graph.add_special_point(bid, sp)
                 node = self.graph.g.nodes[sid]
+                if sp_new and sp.kind not in self.switchers:
+                    # No way to leave here (a torus, a fold that continuation
+                    # passes anyway): a dead end for the explorer.
+                    node["switchable"] = False
                 if not sp_new or node["switched"] or not node["switchable"]:
-                    continue
-                if sp.kind not in self.switchers:
                     continue
                 if s.kinds is not None and sp.kind not in s.kinds:
                     continue
                 if task.depth >= s.depth:
                     continue
+                self.progress.status(f"switching at {node['label']} ({sp.kind}, "
+                                     f"{branch.param}={sp.point.p:.6g}) ...")
                 seeds = self.switchers.seeds(sp, branch, task.seed.problem)
                 self.graph.mark_switched(sid)
                 if s.branch_kinds is not None:

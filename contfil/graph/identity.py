@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -87,19 +88,16 @@ def _cycle_signature(pt: Point) -> Array:
     return np.asarray(vals, dtype=float)
 
 
-def _segment_distance(q: Array, a: Array, b: Array) -> float:
-    """Euclidean distance of ``q`` to the segment ``[a, b]``."""
-    d = b - a
-    dd = float(d @ d)
-    t = 0.0 if dd == 0.0 else min(1.0, max(0.0, float((q - a) @ d) / dd))
-    return float(np.linalg.norm(q - (a + t * d)))
-
-
 def _curve_distance(q: Array, curve: Array) -> float:
-    """Distance of ``q`` to the polyline through the rows of ``curve``."""
+    """Distance of ``q`` to the polyline through the rows of ``curve`` (vectorised)."""
     if len(curve) == 1:
         return float(np.linalg.norm(q - curve[0]))
-    return min(_segment_distance(q, curve[i], curve[i + 1]) for i in range(len(curve) - 1))
+    a, d = curve[:-1], np.diff(curve, axis=0)
+    dd = np.einsum("ij,ij->i", d, d)
+    t = np.einsum("ij,ij->i", q - a, d) / np.where(dd > 0, dd, 1.0)
+    t = np.clip(np.where(dd > 0, t, 0.0), 0.0, 1.0)
+    r = q - (a + t[:, None] * d)
+    return float(np.sqrt(np.min(np.einsum("ij,ij->i", r, r))))
 
 
 class _Orbit:
@@ -118,11 +116,27 @@ class _Orbit:
             L = np.asarray(cs.generator, dtype=float)
             if L.shape == (dim, dim):
                 self.generators.append((L, cs.period or 2 * np.pi))
+        self._eig: dict[int, tuple[Array, Array, Array]] = {}
+
+    def _action(self, L: Array) -> Any:
+        """``theta -> expm(theta L) v`` through one eigendecomposition of ``L``
+        (a rotation generator is normal, so this is well conditioned)."""
+        key = id(L)
+        if key not in self._eig:
+            w, V = np.linalg.eig(L)
+            self._eig[key] = (w, V, np.linalg.inv(V))
+        w, V, Vi = self._eig[key]
+
+        def act(theta: float, v: Array) -> Array:
+            return np.real(V @ (np.exp(w * theta) * (Vi @ v)))
+
+        return act
 
     def extended(self) -> _Orbit:
         """The same group acting on ``(u, omega)``: omega is invariant under
         rotations and may change sign under reflections."""
         out = _Orbit(None, 1)
+        out._eig = {}
         out.reflections = [_extend(R, s) for R in self.reflections for s in (1.0, -1.0)]
         out.generators = [(_extend(L, 0.0), per) for L, per in self.generators]
         return out
@@ -137,15 +151,15 @@ class _Orbit:
                 best = min(best, self._min_over_angle(v, p, L, period, curve, scale))
         return best
 
-    @staticmethod
     def _min_over_angle(
-        v: Array, p: float, L: Array, period: float, curve: Array, scale: Array
+        self, v: Array, p: float, L: Array, period: float, curve: Array, scale: Array
     ) -> float:
-        from scipy.linalg import expm
         from scipy.optimize import minimize_scalar
 
+        act = self._action(L)
+
         def f(theta: float) -> float:
-            w = expm(theta * L) @ v
+            w = act(theta, v)
             return _curve_distance(np.concatenate([w, [p]]) / scale, curve)
 
         # A coarse grid finds the basin, a bounded scalar search refines it.

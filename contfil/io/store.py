@@ -188,8 +188,11 @@ class RunStore:
                     "use --resume to carry on or choose another --out"
                 )
             self.root.mkdir(parents=True, exist_ok=True)
+            from contfil import __version__
+
             self.manifest = {
                 "format": FORMAT,
+                "contfil_version": __version__,
                 "spec": _json_roundtrip(spec or {}),
                 "status": "running",
                 "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),

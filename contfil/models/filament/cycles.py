@@ -189,8 +189,8 @@ def solve_whirling(model: FilamentModel, dh: dict[str, Any], eps: float,
     Solves ``f(u) - omega L u = 0``, ``<L u_ref, u - u_ref> = 0`` and the
     amplitude condition for ``(u, omega, p)`` with the engine's
     :func:`~contfil.engine.cycle_switching.solve_with_amplitude` (hookstep
-    Newton-Krylov), then ``polish`` dense Newton steps at the found ``p`` on
-    the co-moving system itself. Returns ``(problem, x = (u, omega), p, info)``;
+    Newton-Krylov), then ``polish`` dense Newton steps on the same bordered
+    system (model Jacobian). Returns ``(problem, x = (u, omega), p, info)``;
     ``info["residual"]`` is ``max|G(x, p)|`` of the co-moving system.
     """
     from contfil.engine.cycle_switching import solve_with_amplitude
@@ -204,11 +204,18 @@ def solve_whirling(model: FilamentModel, dh: dict[str, Any], eps: float,
     x_star = np.concatenate([np.zeros_like(u0), [ws["omega_rw"]]])
     x, p, info = solve_with_amplitude(pb, z0, dh["p"], x_star,
                                       np.concatenate([ws["d"], [0.0]]), eps, tol=1e-9)
+    # dense Newton on (G(x, p), <d, u> - eps) = 0: keeps the amplitude condition
+    dd = np.concatenate([ws["d"], [0.0]])
     for _ in range(polish):
-        r = pb.residual(x, p)
+        r = np.concatenate([pb.residual(x, p), [dd @ x - eps]])
         if np.max(np.abs(r)) < 1e-13:
             break
-        x = x - np.linalg.solve(pb.jacobian(x, p), r)
+        A = np.zeros((pb.n + 1, pb.n + 1))
+        A[:-1, :-1] = pb.jacobian(x, p)
+        A[:-1, -1] = pb.dp(x, p)
+        A[-1, :-1] = dd
+        dz = np.linalg.solve(A, -r)
+        x, p = x + dz[:-1], p + float(dz[-1])
     out = dict(info)
     out["residual"] = float(np.max(np.abs(pb.residual(x, p))))
     out["seed"] = ws

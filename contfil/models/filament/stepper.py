@@ -34,8 +34,8 @@ kernels, whose out-of-plane components vanish on planar states.)
 
 Solver: inverse ("good") Broyden, see :mod:`contfil.models.filament.broyden`,
 started from the linear extrapolation ``2 z^k - z^{k-1}`` of increments and
-loads (first step: the multipliers of the continuous constraint problem at
-the initial state and ``u = dt Omega``, i.e. an explicit Euler guess).
+loads (first step: zero increments and the multipliers of the continuous
+constraint problem at the initial state).
 ``H0 = J0^{-1}`` comes from an analytic approximate Jacobian
 (:func:`~contfil.models.filament.kernels.bdf2_solver.approx_jacobian`):
 
@@ -57,11 +57,16 @@ residual (position rows in units of ``dL``, orientation rows in radians)
 ``<= tol`` (1e-12 by default, the paper's value); the converged step does
 not depend on these choices beyond that tolerance.
 
-A failed step raises :class:`~contfil.errors.ConvergenceError` or
-:class:`~contfil.errors.NonFiniteError` naming the step, the time and the
-residual; the stepper never returns a partially converged state. There is
-no automatic retry with a smaller ``dt``: that would make ``flow`` a
-non-smooth function of its inputs; pass more ``steps`` instead.
+A step whose Broyden iteration fails is redone as 2, 4, ... ``2^max_halvings``
+sub-steps (BDF2 started by backward Euler, from the last accepted state);
+the BDF2 history is then rebuilt at spacing ``dt``, so the following steps
+are ordinary. The rescued step has a first-order local error, like the
+start-up step, so the order is kept; but ``flow`` is only a smooth function
+of its inputs where no rescue happens (the step indices are recorded in
+``BDF2Stepper.rescued``). If the sub-steps fail too, a
+:class:`~contfil.errors.ConvergenceError` or
+:class:`~contfil.errors.NonFiniteError` names the step, the time and the
+residual; the stepper never returns a partially converged state.
 """
 
 from __future__ import annotations
@@ -183,6 +188,18 @@ def project_planar(U: Array) -> Array:
     return np.asarray(U, dtype=float)[1::3].copy()
 
 
+def _relative_rotvec(qa: Array, qb: Array) -> Array:
+    """Rotation vectors ``log(qa_n . qb_n^*)`` (n, 3), ``|.| <= pi``."""
+    w = np.einsum("ij,ij->i", qa, qb)  # scalar part of qa . conj(qb)
+    v = qb[:, :1] * qa[:, 1:] - qa[:, :1] * qb[:, 1:] - np.cross(qa[:, 1:], qb[:, 1:])
+    sgn = np.where(w < 0, -1.0, 1.0)
+    w, v = w * sgn, v * sgn[:, None]
+    sn = np.linalg.norm(v, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fac = np.where(sn > 1e-12, 2.0 * np.arctan2(sn, w) / np.where(sn > 0, sn, 1.0), 2.0 / w)
+    return v * fac[:, None]
+
+
 def _scene_of(obj: Any) -> Scene:
     if isinstance(obj, Scene):
         return obj
@@ -252,6 +269,8 @@ class BDF2Stepper:
         mobility matrix and squirming interactions frozen at the predictor;
         ``"self"``: with self-mobilities only (the paper's choice; 4-5x more
         Broyden iterations with RPY, see docs/performance.md).
+    max_halvings:
+        Rescue of a failed step by ``2..2^max_halvings`` sub-steps (0: off).
     reuse:
         False: a new ``J0`` is built and inverted every step (the paper's
         form). True: the Broyden-updated inverse is carried to the next step
@@ -276,6 +295,7 @@ class BDF2Stepper:
         jacobian: str = "full",
         reuse: bool = True,
         reuse_limit: int = 8,
+        max_halvings: int = 3,
     ) -> None:
         self.scene = _scene_of(model_or_scene)
         if strength is None:
@@ -289,6 +309,8 @@ class BDF2Stepper:
         self.tol = float(tol)
         self.max_iter = int(max_iter)
         self.max_refresh = int(max_refresh)
+        self.max_halvings = int(max_halvings)
+        self.rescued: list[int] = []
         N = self.phys.N
         self._zmap, self._rmap = _maps(N, self.phys.planar)
         if jacobian not in ("self", "full"):
@@ -339,15 +361,17 @@ class BDF2Stepper:
         self.k = 0
         self.time = float(t0)
         self._info[:] = 0.0
+        self.rescued = []
         self._ready = True
 
     def _consistent_start(self) -> Array:
-        """Predictor of the first step: ``[dt Omega, Lam, Fc, Tc]`` at the start.
+        """Predictor of the first step: zero increments, consistent loads.
 
         The loads are the Lagrange multipliers of the continuous problem at
         the initial frames (the same constraint solve as the model's
-        ``rhs``), so the backward-Euler step starts from an explicit-Euler
-        guess; starting from zero loads diverges for strong actuation.
+        ``rhs``). Starting from zero loads diverges for strong actuation;
+        starting the increments at ``dt Omega`` (explicit Euler) overshoots
+        the stiff modes by ``dt |lambda_max| >> 1`` and is worse than zero.
         """
         ph = self.phys
         N = ph.N
@@ -364,10 +388,8 @@ class BDF2Stepper:
         else:
             Vsf = np.zeros((N, 3))
         TE = _elastic.elastic_torques(q, ph.dL, ph.KB, ph.KT)
-        lam, vel = _kc.solve_constraints(t, Mob, FA, TE, Vsf, ph.dL)
+        lam, _ = _kc.solve_constraints(t, Mob, FA, TE, Vsf, ph.dL)
         z = np.zeros(6 * N)
-        Om = vel[3 * N :].reshape(N, 3)
-        z[: 3 * (N - 1)] = 0.0 * Om[1:].ravel()
         z[3 * (N - 1) :] = lam
         if not np.all(np.isfinite(z)):
             raise NonFiniteError("BDF2Stepper.reset: non-finite loads at the initial state")
@@ -403,6 +425,82 @@ class BDF2Stepper:
             zp[6 * N - 3 :].copy(),
         )
 
+    def _kernel(
+        self,
+        n: int,
+        k0: int,
+        dt: float,
+        state: tuple[Array, ...],
+        rec_every: int,
+        rec_offset: int,
+        rec_q: Array,
+        diag: Array,
+        info: Array,
+    ) -> int:
+        q, x, xm1, zp, zpm1, H = state
+        return int(
+            _k.advance(
+                n,
+                k0,
+                dt,
+                q,
+                x,
+                xm1,
+                zp,
+                zpm1,
+                H,
+                self._physarr,
+                self.phys.wff,
+                self.phys.wsf,
+                self._opts,
+                self._zmap,
+                self._rmap,
+                self.tol,
+                rec_every,
+                rec_offset,
+                rec_q,
+                diag,
+                info,
+            )
+        )
+
+    def _rescue(self) -> Array | None:
+        """Redo the failed step ``k -> k+1`` as ``2^m`` sub-steps (m = 1..max_halvings).
+
+        The sub-steps are a BDF2 run of step ``dt/2^m`` started by backward
+        Euler, from the last accepted state; afterwards the BDF2 history is
+        rebuilt at spacing ``dt`` (positions at k and k+1, increments
+        ``log(q^{k+1} q^{k*})``), so the next steps are ordinary BDF2 steps.
+        Returns the diagnostic row of the rescued step, or None if all failed.
+        """
+        N = self.phys.N
+        for m in range(1, self.max_halvings + 1):
+            nsub = 2**m
+            q = self._q.copy()
+            x = self._x.copy()
+            zp = self._zp.copy()
+            zp[: 3 * (N - 1)] = 0.0  # loads of step k as the predictor, no motion
+            sub = (q, x, x.copy(), zp, zp.copy(), np.zeros_like(self._H))
+            d = np.zeros((nsub, _k.N_DIAG))
+            info = np.zeros(4)
+            done = self._kernel(nsub, 0, self.dt / nsub, sub, 0, 0, np.empty((1, N, 4)), d, info)
+            if done < nsub:
+                continue
+            incr = np.zeros(6 * N)
+            incr[: 3 * (N - 1)] = _relative_rotvec(q[1:], self._q[1:]).ravel()
+            incr[3 * (N - 1) :] = zp[3 * (N - 1) :]
+            self._zpm1[:] = self._zp
+            self._zp[:] = 0.0
+            self._zp[self._zmap] = incr[self._zmap]
+            self._xm1[:] = self._x
+            self._x[:] = x
+            self._q[:] = q
+            self._info[3] = 0.0  # no carried-over inverse Jacobian
+            return np.array(
+                [d[:, 0].sum(), d[:, 1].max(), d[:, 2].max(), d[:, 3].max(), d[:, 4].sum()]
+            )
+        return None
+
     def _advance(self, n: int, rec_every: int = 0) -> tuple[StepDiagnostics, Array]:
         if not self._ready:
             raise RuntimeError("BDF2Stepper: call reset(u) before stepping")
@@ -410,39 +508,40 @@ class BDF2Stepper:
         nrec = n // rec_every if rec_every > 0 else 0
         rec_q = np.empty((max(nrec, 1), N, 4))
         diag = np.zeros((max(n, 1), _k.N_DIAG))
-        done = _k.advance(
-            n,
-            self.k,
-            self.dt,
-            self._q,
-            self._x,
-            self._xm1,
-            self._zp,
-            self._zpm1,
-            self._H,
-            self._physarr,
-            self.phys.wff,
-            self.phys.wsf,
-            self._opts,
-            self._zmap,
-            self._rmap,
-            self.tol,
-            rec_every,
-            rec_q,
-            diag,
-            self._info,
-        )
-        self.k += done
-        self.time += done * self.dt
-        if done < n:
+        state = (self._q, self._x, self._xm1, self._zp, self._zpm1, self._H)
+        i0 = 0
+        while i0 < n:
+            done = self._kernel(
+                n - i0, self.k, self.dt, state, rec_every, i0, rec_q, diag[i0:], self._info
+            )
+            self.k += done
+            self.time += done * self.dt
+            i0 += done
+            if i0 == n:
+                break
             status = int(self._info[0])
             kfail = int(self._info[1])
             res = float(self._info[2])
+            row = self._rescue() if self.max_halvings > 0 else None
+            if row is not None:
+                self.rescued.append(kfail)
+                diag[i0] = row
+                self.k += 1
+                self.time += self.dt
+                i0 += 1
+                if rec_every > 0 and i0 % rec_every == 0:
+                    rec_q[i0 // rec_every - 1] = self._q
+                continue
             msg = (
                 f"BDF2 step {kfail} (t = {kfail * self.dt:.6g} -> "
                 f"{(kfail + 1) * self.dt:.6g}, dt = {self.dt:.3g}): Broyden "
                 f"{_br.STATUS_NAMES.get(status, status)}, scaled residual |R|_inf = "
                 f"{res:.3e} (tol {self.tol:.1e})"
+                + (
+                    f"; also failed as 2..{2**self.max_halvings} sub-steps"
+                    if self.max_halvings > 0
+                    else ""
+                )
             )
             self._ready = False  # state is the last accepted step; force a reset
             if status == _br.NONFINITE:
@@ -560,7 +659,8 @@ def trajectory(
     constraint residual ``max_n |X_{n+1} - X_n - dL/2 (t_n + t_{n+1})|``
     (round-off by construction, since positions come from frames) and the
     kinematic residual ``max |x^{k+1} - 4/3 x^k + 1/3 x^{k-1} - 2/3 dt V^{k+1}|``
-    of the BDF position equations (bounded by ``tol * dL``).
+    of the BDF position equations (bounded by ``tol * dL``). ``extra``
+    holds ``rescued_steps``, the indices of steps redone as sub-steps.
     """
     n = _n_steps(T, steps, dt)
     if out_every < 1:
@@ -588,6 +688,7 @@ def trajectory(
         observables={k: np.array(v) for k, v in obs.items()},
         diagnostics=diag,
         dt=st.dt,
+        extra={"rescued_steps": list(st.rescued)},
     )
 
 

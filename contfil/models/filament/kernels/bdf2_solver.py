@@ -51,7 +51,7 @@ P_DL, P_A, P_ETA, P_KB, P_KT, P_F, P_B1 = 0, 1, 2, 3, 4, 5, 6
 D_ITERS, D_RES, D_CONSTR, D_KIN, D_REFRESH = 0, 1, 2, 3, 4
 N_DIAG = 5
 # a Broyden step multiplying the residual by more than this is halved
-GROWTH = 100.0
+GROWTH = 4.0
 # opts layout (int64)
 O_HYDRO, O_JMODE, O_REUSE, O_MAXIT, O_MAXREF, O_REUSE_LIMIT = 0, 1, 2, 3, 4, 5
 
@@ -733,6 +733,7 @@ def advance(
     rmap: np.ndarray,
     tol: float,
     rec_every: int,
+    rec_offset: int,
     rec_q: np.ndarray,
     diag: np.ndarray,
     info: np.ndarray,
@@ -752,7 +753,8 @@ def advance(
     ``rec_every``-th step; ``diag[i]`` gets (iterations, scaled residual,
     constraint residual, kinematic residual, J0 builds) of step i. On failure
     ``info = [status, step index, residual]`` and the state is left at the
-    last accepted step.
+    last accepted step. ``rec_offset`` steps of the same recording were taken
+    by earlier calls (it shifts the recording schedule).
     """
     N = q.shape[0]
     nz = zmap.shape[0]
@@ -857,8 +859,9 @@ def advance(
         diag[i, D_CONSTR] = con
         diag[i, D_KIN] = kin
         diag[i, D_REFRESH] = nbuild
-        if rec_every > 0 and (i + 1) % rec_every == 0:
-            ir = (i + 1) // rec_every - 1
+        ii = rec_offset + i + 1
+        if rec_every > 0 and ii % rec_every == 0:
+            ir = ii // rec_every - 1
             for n in range(N):
                 for c in range(4):
                     rec_q[ir, n, c] = q[n, c]
