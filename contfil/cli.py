@@ -9,7 +9,8 @@
     contfil show RUN
 
 Errors in the input (bad spec, missing run) print one line ``contfil: error:
-...`` naming the problem and exit with status 2.
+...`` naming the problem and exit with status 2; operating-system errors
+(disk full, permissions) print one line and exit with status 1.
 """
 
 from __future__ import annotations
@@ -99,15 +100,36 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
     g = as_graph(args.run)
     out = Path(args.out) if args.out else Path(args.run) / "plots"
-    for f in save_run_plots(g, out, args.observable):
+    files = save_run_plots(g, out, args.observable)
+    spec_file = Path(args.run) / "spec.toml"
+    if spec_file.exists():
+        # Shapes need the model: rebuilt from the run's own spec.
+        from contfil.graph.engine_adapter import build_model
+        from contfil.io.spec import load_spec
+        from contfil.plot.diagrams import save_shape_plots
+
+        files += save_shape_plots(build_model(load_spec(spec_file)).model, g, out)
+    for f in files:
         print(f)
     return 0
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    from contfil.io.store import load_run_graph
+    from contfil.io.store import RunStore, load_run_graph, task_summaries
 
-    print(load_run_graph(args.run).summary())
+    run = Path(args.run)
+    status = "complete"
+    if (run / "run.json").exists():
+        status = RunStore.read_manifest(run).get("status", "?")
+    if (run / "graph.json").exists() or run.is_file():
+        print(load_run_graph(run).summary())
+    if run.is_dir() and status != "complete":
+        # A run in progress (or interrupted): what the task logs hold so far.
+        print(f"status: {status}; tasks:")
+        for line in task_summaries(run):
+            print("  " + line)
+    elif not (run / "graph.json").exists() and not run.is_file():
+        load_run_graph(run)  # raises the usual clear error
     return 0
 
 
@@ -139,6 +161,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         msg = " ".join(str(exc).split())  # one line
         print(f"contfil: error: {msg}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        # Disk full, permissions, ...: not a bad spec, but still one clear line.
+        print(f"contfil: error: {exc}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("contfil: interrupted (resume with --resume)", file=sys.stderr)
         return 130

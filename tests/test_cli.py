@@ -41,6 +41,9 @@ def test_readme_main_command_runs_default_study(default_run: Path) -> None:
         img = imread(default_run / "plots" / f)
         assert img.shape[0] > 200 and img.shape[1] > 200
         assert img[..., :3].std() > 0.05  # not a blank canvas
+    for bid, br in g.branches.items():
+        if br.kind != "equilibrium" and "scene" in DEFAULT.read_text():
+            assert (default_run / "plots" / f"shape_{bid}.png").exists()
     m = json.loads((default_run / "run.json").read_text())
     assert m["status"] == "complete" and m["format"] == "contfil-run/1"
     assert (default_run / "spec.toml").read_text() == DEFAULT.read_text()

@@ -124,3 +124,28 @@ def test_period_means_of_observables():
     assert obs["mean_norm"] == pytest.approx(ex["r"], abs=1e-8)
     assert obs["mean_u0"] == pytest.approx(0.0, abs=1e-8)
     assert obs["period"] == ex["period"]
+
+
+def test_central_differences_sharpen_stepper_multipliers():
+    from contfil.engine.default_flow import RadauFlow
+
+    base = stuart_landau(mu=0.5, b=0.3)
+    rf = RadauFlow(base.rhs, base.jacobian, steps=50)
+
+    class Stepped:
+        name, dim, param_names, symmetries = "stepped", 2, base.param_names, base.symmetries
+        default_params, initial_state, rhs = base.default_params, base.initial_state, base.rhs
+        observables = base.observables
+        flow = staticmethod(rf.flow)
+
+    ex = exact_cycle(0.5, b=0.3)
+    x = np.array([ex["r"], 0.0, ex["period"]])
+    # reference: exact multipliers of the same discrete map (Radau tangent)
+    ref = PeriodicOrbitProblem(base, "mu", steps=50).stability(x, 0.5)
+    mu_ref = ref.values[~ref.trivial].real
+    errs = {}
+    for central, rel in ((False, 1e-7), (True, 1e-5)):
+        pb = PeriodicOrbitProblem(Stepped(), "mu", fd_central=central, fd_rel=rel)
+        st = pb.stability(x, 0.5)
+        errs[central] = abs(st.values[~st.trivial].real[0] - mu_ref[0])
+    assert errs[True] < 1e-9 < errs[False]

@@ -215,6 +215,18 @@ def test_second_order_convergence(tip_ff: FilamentModel) -> None:
     assert np.all(np.abs(ratios - 2.0) < 0.15), ratios
 
 
+def test_richardson_flow_is_third_order(tip_ff: FilamentModel) -> None:
+    p = tip_ff.default_params()
+    U0 = bent_state()
+    T = 0.02
+    ref = flow(tip_ff, U0, p, T, steps=640, richardson=True)
+    e10 = np.max(np.abs(flow(tip_ff, U0, p, T, steps=10, richardson=True) - ref))
+    e20 = np.max(np.abs(flow(tip_ff, U0, p, T, steps=20, richardson=True) - ref))
+    plain20 = np.max(np.abs(flow(tip_ff, U0, p, T, steps=20) - ref))
+    assert np.log2(e10 / e20) > 2.9  # measured 3.3 (plain BDF2: 2.0)
+    assert e20 < plain20 / 50
+
+
 def test_agrees_with_tight_radau_on_rhs(tip_ff: FilamentModel) -> None:
     """BDF2 converges to the solution of the model's own vector field."""
     p = tip_ff.default_params()

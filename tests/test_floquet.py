@@ -150,3 +150,23 @@ def test_multipliers_of_designed_cycle_all_seven(steps):
     got = st.values[np.lexsort((st.values.imag, np.abs(st.values)))]
     want = ex["multipliers"][np.lexsort((ex["multipliers"].imag, np.abs(ex["multipliers"])))]
     np.testing.assert_allclose(got, want, atol=1e-7)
+
+
+def test_deflated_eigenvectors_are_eigenvectors_of_the_full_monodromy():
+    # Standing wave of the O(2) normal form with amplitude-dependent frequencies:
+    # the amplitude modes couple into the phase (trivial) directions, so the
+    # compressed eigenvectors must be lifted back correctly.
+    from contfil.engine.shooting import RelativePeriodicOrbitProblem
+    from contfil.models.catalog.cycles_o2 import exact_standing, o2_hopf
+
+    P = dict(mu=0.2, omega=1.0, ar=-2.0, ai=0.3, br=-1.0, bi=0.5)
+    m = o2_hopf(**P)
+    e = exact_standing(**P)
+    r = np.sqrt(e["r2"])
+    pb = RelativePeriodicOrbitProblem(m, "mu", steps=60)
+    x = np.array([r, 0.0, r, 0.0, e["period"], 0.0])
+    st = pb.stability(x, 0.2)
+    M = pb.ops.monodromy(x[:4], pb.params_at(0.2), e["period"])
+    res = np.linalg.norm(M @ st.vectors - st.vectors * st.values[None, :], axis=0)
+    assert np.max(res) < 1e-7
+    assert st.trivial.sum() == 2

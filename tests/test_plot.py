@@ -95,3 +95,46 @@ def test_save_run_plots_writes_pngs(tmp_path) -> None:
     assert [p.name for p in paths] == ["diagram.png", "eigenvalues.png"]
     assert all(p.stat().st_size > 5000 for p in paths)
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_eigenvalue_plot_cycles_as_floquet_exponents() -> None:
+    # A cycle with multipliers exp(lambda T): the plot shows lambda back.
+    T, lam = 2.0, np.array([0.3 + 1.0j, -0.5])
+    pts = [Point(u=np.ones(2), p=p, params=np.array([p]), kind="periodic_orbit",
+                 extra={"period": T}, eigenvalues=np.exp(lam * T), n_unstable=1)
+           for p in (0.0, 0.5, 1.0)]
+    g = BranchGraph()
+    g.add_branch(Branch("periodic_orbit", "mu", pts))
+    ax_re, ax_im = eigenvalue_plot(g, n=2)
+    np.testing.assert_allclose(ax_re.lines[0].get_ydata(), 0.3)
+    np.testing.assert_allclose(ax_im.lines[0].get_ydata(), 1.0)
+    np.testing.assert_allclose(ax_re.lines[1].get_ydata(), -0.5)
+    plt.close(ax_re.figure)
+
+
+def test_branch_snapshots_of_rotating_wave_is_rigid_rotation() -> None:
+    from contfil.models.protocol import ContinuousSymmetry, Symmetries
+    from contfil.plot.diagrams import branch_snapshots
+
+    Lz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+
+    class Rod:
+        """State = 3 points of a bent rod; centreline = base + those points."""
+
+        symmetries = Symmetries(continuous=[ContinuousSymmetry("rot", np.kron(np.eye(3), Lz))])
+
+        def centreline(self, u):
+            return np.vstack([np.zeros(3), np.asarray(u).reshape(3, 3)])
+
+    u = np.array([0.0, 0.0, 0.4, 0.1, 0.0, 0.8, 0.3, 0.0, 1.0])
+    pt = Point(u=u, p=1.0, params=np.array([1.0]), kind="rotating_wave", extra={"omega": 2.0})
+    g = BranchGraph()
+    g.add_branch(Branch("rotating_wave", "f", [pt]))
+    ax = branch_snapshots(Rod(), g, "B0", n_frames=8)
+    tip = [ln for ln in ax.lines if ln.get_linestyle() == "--"][0]
+    x, y, z = (np.asarray(c) for c in tip.get_data_3d())
+    assert len(x) == 9
+    np.testing.assert_allclose(np.hypot(x, y), 0.3, atol=1e-12)  # circle about e3
+    np.testing.assert_allclose(z, 1.0)
+    np.testing.assert_allclose([x[0], y[0]], [x[-1], y[-1]], atol=1e-12)  # one period
+    plt.close(ax.figure)

@@ -172,7 +172,8 @@ def test_kill_inside_rotating_wave_branch_then_resume(tmp_path: Path) -> None:
     assert res.n_computed_points == _check_logs(run) - (n_root + 4)
 
 
-def test_injected_kills_then_resume_equal_uninterrupted(reference, tmp_path: Path) -> None:
+def test_injected_kills_then_resume_equal_uninterrupted(reference, tmp_path: Path,
+                                                         capsys) -> None:
     spec_path, ref = reference
     run = tmp_path / "run"
     # 1st process: killed (SIGKILL) halfway through writing its 31st point record.
@@ -187,6 +188,12 @@ def test_injected_kills_then_resume_equal_uninterrupted(reference, tmp_path: Pat
              {"CONTFIL_TEST_CRASH_AFTER": "25"})
     p.wait(timeout=120)
     assert p.returncode == -signal.SIGKILL
+    # An interrupted run can be inspected.
+    from contfil.cli import main
+
+    assert main(["show", str(run)]) == 0
+    out = capsys.readouterr().out
+    assert "status: running" in out and "(running or interrupted)" in out
     # 3rd: resume to the end, in process.
     res = run_study(load_spec(spec_path), out=run, resume=True,
                     progress=Progress(enabled=False))

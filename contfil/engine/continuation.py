@@ -84,7 +84,8 @@ class ContinuationSettings:
         Store ``problem.observables`` (if the problem has it) at each point.
     krylov:
         Options for the matrix-free corrector (``gmres_rtol``,
-        ``gmres_restart``, ``gmres_maxiter``).
+        ``gmres_restart``, ``gmres_maxiter``) and ``tangent_rtol`` for the
+        GMRES solve of the tangent (default 1e-7).
     verbose:
         Print one line per accepted point.
     """
@@ -300,7 +301,7 @@ class Continuation:
             return newton_dense(
                 F, lambda X: self._jac_aug(X, border), X0, s.newton_tol, s.newton_max_iter
             )
-        kw = dict(s.krylov)
+        kw = {k: v for k, v in s.krylov.items() if k != "tangent_rtol"}
         P = self._aug_preconditioner(X0, border)
         if P is not None:
             kw.setdefault("preconditioner", P)
@@ -409,7 +410,7 @@ class Continuation:
             op,
             rhs,
             x0=border_tangent,
-            rtol=1e-9,
+            rtol=self._tangent_rtol(),
             atol=0.0,
             restart=min(n + 1, 60),
             maxiter=10,
@@ -459,7 +460,19 @@ class Continuation:
         evals = getattr(pb, "rhs_evals", None)
         if evals is not None:
             pt.cost["rhs_evals"] = float(evals - evals0)
+        flows = getattr(pb, "flow_evals", None)
+        if flows is not None:
+            # cumulative: flows are the honest, machine-independent cost unit
+            pt.cost["flow_evals_total"] = float(flows)
         return pt
+
+    def _tangent_rtol(self) -> float:
+        """GMRES tolerance of the matrix-free tangent solve.
+
+        Finite-difference Jacobian products of a time-stepper carry noise far
+        above 1e-9, so an over-tight default only burns flow evaluations.
+        """
+        return float(self.settings.krylov.get("tangent_rtol", 1e-7))
 
     def _event_values(self, ctx: EventContext) -> dict[str, Array]:
         return {
@@ -543,7 +556,10 @@ class Continuation:
                     (n + 1, n + 1), matvec=lambda v: P(np.asarray(v, float).ravel())
                 )
             )
-            t, _ = gmres(opa, e, rtol=1e-9, atol=0.0, restart=min(n + 1, 60), maxiter=10, M=Mop)
+            t, _ = gmres(
+                opa, e, rtol=self._tangent_rtol(), atol=0.0, restart=min(n + 1, 60),
+                maxiter=10, M=Mop,
+            )
         t = self._unit(t)
         if t[-1] != 0.0:
             t = t * np.sign(t[-1])

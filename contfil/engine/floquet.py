@@ -269,23 +269,26 @@ def floquet_multipliers(
         start = rng.standard_normal(n) if v0 is None else np.array(v0, dtype=float)
         start = start - Q @ (Q.T @ start)
         m = n - rank
+        MQ = np.column_stack([np.asarray(apply_monodromy(q), dtype=float) for q in Q.T])
+        calls["n"] += rank
+        R = Q.T @ MQ
         if m > 0:
             nv, Y, info = arnoldi_eigs(mvp, n, nev=min(nev, m), tol=tol,
                                        kmax=kmax, v0=start, space_dim=m)
             k = info["iterations"]
             W = np.column_stack(raw[:k])
             MY = W @ info["coeffs"]
-            # lift the compressed eigenvectors: x = y + Q z, z = Qᵀ M y / (μ - 1)
-            den = nv - 1.0
-            den = np.where(np.abs(den) < 1e-12, 1e-12, den)
-            Xn = Y + Q @ ((Q.T @ MY) / den[None, :])
+            # lift the compressed eigenvectors: x = y + Q z with (μ I - R) z = Qᵀ M y
+            Xn = np.array(Y, dtype=complex)
+            eye = np.eye(rank)
+            for j, mu in enumerate(nv):
+                A = mu * eye - R
+                if np.linalg.cond(A) < 1e12:  # else μ sits on a trivial one: keep y
+                    Xn[:, j] = Y[:, j] + Q @ np.linalg.solve(A, Q.T @ MY[:, j])
             Xn /= np.linalg.norm(Xn, axis=0, keepdims=True)
         else:
             nv, Xn, info = np.zeros(0, complex), np.zeros((n, 0), complex), {
                 "iterations": 0, "converged": True, "ritz_change": 0.0, "residuals": np.zeros(0)}
-        MQ = np.column_stack([np.asarray(apply_monodromy(q), dtype=float) for q in Q.T])
-        calls["n"] += rank
-        R = Q.T @ MQ
         tv, tY = np.linalg.eig(R)
         Xt = Q @ tY
         vals = np.concatenate([tv.astype(complex), nv])

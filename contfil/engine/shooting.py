@@ -83,9 +83,9 @@ class PeriodicOrbitProblem(Problem):
         means of the scalar observables over ``k`` equal sub-intervals of the
         period, e.g. the period-mean bending energy of a diagram); costs ``k``
         extra flow calls of length ``T/k`` per point.
-    flow_kwargs, fd_rel:
+    flow_kwargs, fd_rel, fd_central:
         Passed to :class:`~contfil.engine.default_flow.FlowOps` (keywords of a
-        model's own ``flow``; finite-difference increment).
+        model's own ``flow``; finite-difference increment and scheme).
     """
 
     kind = PERIODIC_ORBIT
@@ -107,6 +107,7 @@ class PeriodicOrbitProblem(Problem):
         period_means: int = 0,
         flow_kwargs: dict[str, Any] | None = None,
         fd_rel: float = 1e-7,
+        fd_central: bool = False,
     ) -> None:
         self.model = model
         self.param = param
@@ -136,7 +137,7 @@ class PeriodicOrbitProblem(Problem):
                     f"as {model.name!r}"
                 )
         self.steps = int(steps)
-        self._flow_kw = {"flow_kwargs": flow_kwargs, "fd_rel": fd_rel}
+        self._flow_kw = {"flow_kwargs": flow_kwargs, "fd_rel": fd_rel, "fd_central": fd_central}
         self.ops = FlowOps(self.solve_model, steps=self.steps, param_index=self.ip, **self._flow_kw)
         self._full_ops: FlowOps | None = None if self.subspace is not None else self.ops
         self.dim = int(self.solve_model.dim)

@@ -120,9 +120,10 @@ def run_study(
         files.append(graph.save_graphml(run_dir / "graph.graphml"))
     do_plots = spec.output["plots"] if plots is None else plots
     if do_plots and len(graph):
-        from contfil.plot.diagrams import save_run_plots
+        from contfil.plot.diagrams import save_run_plots, save_shape_plots
 
         files += save_run_plots(graph, run_dir / "plots", spec.output["observable"])
+        files += save_shape_plots(info.model, graph, run_dir / "plots")
     store.set_status("complete", n_branches=len(graph),
                      n_special_points=len(graph.special_points))
     return StudyResult(graph=graph, run_dir=run_dir, files=files,

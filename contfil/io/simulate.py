@@ -110,7 +110,7 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
 
         t_eval = np.linspace(0.0, sim["t_end"], sim["frames"])
         sol = solve_ivp(lambda _t, u: model.rhs(u, params), (0.0, sim["t_end"]), u0,
-                        t_eval=t_eval, rtol=1e-8, atol=1e-10, max_step=sim["dt"] * 100)
+                        t_eval=t_eval, rtol=1e-8, atol=1e-10)
         if not sol.success:
             raise ContfilError(f"simulate: integration failed: {sol.message}")
         t, states = sol.t, sol.y.T

@@ -264,3 +264,20 @@ def load_run_graph(run: str | Path) -> Any:
     if path.suffix == ".graphml":
         return BranchGraph.load_graphml(path)
     return BranchGraph.load_json(path)
+
+
+def task_summaries(run: str | Path) -> list[str]:
+    """One line per task log of a run (works while the run is going on)."""
+    lines = []
+    for f in sorted((Path(run) / "tasks").glob("T*.jsonl")):
+        recs = parse_task_records(RecordLog(f).read()[0])
+        seed = (recs.header or {}).get("seed", {})
+        last = recs.points[-1] if recs.points else None
+        where = "" if last is None else f"last p={last.p:.8g}"
+        kinds = ",".join(sp.kind for sp in recs.specials)
+        lines.append(
+            f"{f.stem:<7} {seed.get('kind', '?'):<16} {len(recs.points):4d} points  {where}"
+            + (f"  specials: {kinds}" if kinds else "")
+            + (f"  ended: {recs.end}" if recs.end else "  (running or interrupted)")
+        )
+    return lines

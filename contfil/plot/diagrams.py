@@ -139,9 +139,9 @@ def eigenvalue_plot(
 ) -> tuple[Axes, Axes]:
     """Real and imaginary parts of the ``n`` leading eigenvalues against the parameter.
 
-    For cycle branches the values are Floquet multipliers, shown as
-    ``log|mu|`` (growth per period, zero on the stability boundary) and
-    ``arg(mu)``. Special points are marked with vertical lines.
+    For cycle branches the Floquet multipliers ``mu`` are shown as Floquet
+    exponents ``log(mu)/T`` (real part zero on the stability boundary), so
+    all kinds share one scale. Special points are marked with vertical lines.
     Returns the two Axes (real part, imaginary part).
     """
     g = as_graph(source)
@@ -165,8 +165,11 @@ def eigenvalue_plot(
             if pt.trivial is not None and not include_trivial and len(pt.trivial) == len(ev):
                 ev = ev[~np.asarray(pt.trivial, dtype=bool)]
             if cycles:
+                # Floquet exponents log(mu)/T: comparable with eigenvalues of
+                # equilibria and rotating waves (same sign convention, units).
+                T = float(pt.extra.get("period", 1.0)) or 1.0
                 with np.errstate(divide="ignore"):
-                    ev = np.log(np.abs(ev)) + 1j * np.angle(ev)
+                    ev = (np.log(np.abs(ev)) + 1j * np.angle(ev)) / T
             row = np.full(n, np.nan + 0j)
             row[: min(n, ev.size)] = ev[:n]
             rows.append(row)
@@ -193,8 +196,8 @@ def eigenvalue_plot(
         pad = 0.1 * (hi - lo or 1.0)
         ax_re.set_ylim(lo - pad, hi + pad)
     ax_re.axhline(0.0, color="k", lw=0.6)
-    ax_re.set_ylabel("Re λ  (cycles: log|μ|)")
-    ax_im.set_ylabel("Im λ  (cycles: arg μ)")
+    ax_re.set_ylabel("Re λ  (cycles: Floquet exponent)")
+    ax_im.set_ylabel("Im λ")
     ax_im.set_xlabel(param)
     if ids:
         ax_re.legend(fontsize=7, frameon=False)
@@ -301,3 +304,54 @@ def _save(fig: Any, path: Path) -> Path:
     fig.savefig(tmp, dpi=120, format="png")
     os.replace(tmp, path)
     return path
+
+
+def branch_snapshots(
+    model: Any,
+    graph: BranchGraph,
+    bid: str,
+    index: int = -1,
+    n_frames: int = 12,
+    ax: Axes | None = None,
+) -> Axes:
+    """The filament state at point ``index`` of branch ``bid``, in 3D.
+
+    A rotating wave is drawn over one period of its motion, which is a rigid
+    rotation ``u(t) = exp(omega t L) u`` of the stored co-moving state (no
+    time stepping needed); other kinds are drawn as the stored shape.
+    ``model`` needs ``centreline(u)`` (the filament) and, for rotating waves,
+    a continuous symmetry.
+    """
+    pt = graph.point(bid, index)
+    u = np.asarray(pt.u, dtype=float)
+    omega = float(pt.extra.get("omega", 0.0))
+    sym = getattr(getattr(model, "symmetries", None), "continuous", None)
+    if graph.branch(bid).kind == "rotating_wave" and omega != 0.0 and sym:
+        T = 2 * np.pi / abs(omega)
+        times = np.linspace(0.0, T, n_frames + 1)
+        X = np.array([model.centreline(sym[0].act(omega * t, u)) for t in times])
+    else:
+        times = np.zeros(1)
+        X = np.asarray(model.centreline(u), dtype=float)[None]
+    ax = filament_snapshots(X, times if len(times) > 1 else None, ax=ax,
+                            tip_path=len(times) > 1)
+    ax.set_title(f"{bid} ({graph.branch(bid).kind.replace('_', ' ')}), "
+                 f"{graph.branch(bid).param} = {pt.p:.6g}")
+    return ax
+
+
+def save_shape_plots(model: Any, graph: BranchGraph, out_dir: str | Path) -> list[Path]:
+    """``shape_<branch>.png``: the last state of every non-equilibrium branch
+    (filament models only; returns the paths written)."""
+    if not callable(getattr(model, "centreline", None)):
+        return []
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for bid, br in graph.branches.items():
+        if br.kind == "equilibrium" or not br.points:
+            continue
+        ax = branch_snapshots(model, graph, bid)
+        paths.append(_save(ax.figure, out / f"shape_{bid}.png"))
+        plt.close(ax.figure)
+    return paths
