@@ -154,7 +154,9 @@ class FunctionModel:
         self._f = f
         self._u0 = np.zeros(self.dim) if u0 is None else np.asarray(u0, dtype=float).copy()
         if self._u0.shape != (self.dim,):
-            raise ValueError(f"FunctionModel: u0 has shape {self._u0.shape}, expected ({self.dim},)")
+            raise ValueError(
+                f"FunctionModel: u0 has shape {self._u0.shape}, expected ({self.dim},)"
+            )
         self.symmetries = symmetries or Symmetries()
         self._obs = observables
         if jacobian is not None:

@@ -132,10 +132,21 @@ class FilamentModel:
             J[:, i] = (fp - fm) / (2.0 * h)
         return J
 
+    #: Default resolution of ``flow`` when neither ``steps`` nor ``dt`` is
+    #: given: the paper's T/400 per period, refined so no step exceeds
+    #: ``flow_dt_max`` on long horizons. The step count only changes at
+    #: isolated T, so the map stays smooth in T where shooting uses it.
+    flow_steps_min: int = 400
+    flow_dt_max: float = 5e-4
+
     def _flow(self, u: Array, p: Array, T: float, **kwargs: Any) -> Array:
         """Time-T map, delegated to :mod:`contfil.models.filament.stepper`."""
         from . import stepper
 
+        if kwargs.get("steps") is None and kwargs.get("dt") is None:
+            kwargs["steps"] = max(
+                self.flow_steps_min, int(np.ceil(abs(T) / self.flow_dt_max - 1e-9))
+            )
         return stepper.flow(self, u, p, T, **kwargs)
 
     # -- geometry helpers -------------------------------------------------
