@@ -346,6 +346,78 @@ def run_model(name: str, parts: list[str], quick: bool, steps: int,
         _save(name, "dt", quick, {"pitchfork": sps[0], "runs": runs})
 
 
+def table() -> None:
+    """Print the markdown tables of docs/filament-cycles.md from the JSON results."""
+    print("| model | p* (double Hopf) | whirling torus p | Ω at torus | whirling freq abs(Ω)/2π |"
+          " Im λ (ω₂) | ω₂/2π | arg μ | E at torus | points / wall |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name, cfg in MODELS.items():
+        w = load(name, "whirling")
+        if w is None:
+            continue
+        dh = w["double_hopf"]
+        tor = [s for s in w["special"] if s["kind"] == "hopf"]
+        if not tor:
+            print(f"| {name} | {dh['p']:.5g} | not found up to {w['points'][-1]['p']:.4g} |"
+                  " | | | | | | |")
+            continue
+        s = tor[0]
+        print(f"| {name} | {cfg['label']} = {dh['p']:.5g} | {s['p']:.6g} | {s['omega']:.6g} | "
+              f"{s['freq']:.5g} | {s['eigenvalue'][1]:.6g} | {s['freq2_comoving']:.5g} | "
+              f"{s['multiplier_angle']:.4f} | {s['E']:.4g} | {len(w['points'])} / "
+              f"{w['wall']:.0f} s |")
+    print()
+    print("| model | p | steps | Ω co-moving | Ω shooting | rel. diff | max dist(μ_sh, exp(λT)) "
+          "(4 leading) | trivial μ | Newton residual (2-norm) | flows | wall |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for name in MODELS:
+        for steps in (200, 400, 800):
+            sh = load(name, f"shoot{steps}")
+            if sh is None:
+                continue
+            print(f"| {name} | {sh['p']:.5g} | {steps} | {sh['omega_comoving']:.8g} | "
+                  f"{sh['omega_shooting']:.8g} | {sh['rel_omega_diff']:.2e} | "
+                  f"{max(sh['multiplier_mismatch'][:4]):.1e} | "
+                  f"{sh['trivial_shooting'][0][0]:.7f} | {sh['newton_residual']:.1e} | "
+                  f"{sh['flow_evals']} | {sh['wall']:.0f} s |")
+    print()
+    print("| model | first beating (ε=0.05) p, T | range continued | leading μ (first → last) |"
+          " pitchfork p | T, 1/T at pitchfork | points | flows planar / 3D | wall | stop |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for name in MODELS:
+        b = load(name, "beating")
+        if b is None:
+            continue
+        pts = b["points"]
+        pf = [s for s in b["special"] if s.get("event") == "out_of_plane_pitchfork"]
+        pfs = f"{pf[0]['p']:.6g}" if pf else "not reached"
+        pft = f"{pf[0]['T']:.6g}, {1 / pf[0]['T']:.5g}" if pf else ""
+        print(f"| {name} | {b['first']['p']:.6g}, {b['first']['T']:.6g} | "
+              f"{pts[0]['p']:.5g} – {pts[-1]['p']:.5g} | "
+              f"{pts[0]['multipliers'][0][0]:.5g} → {pts[-1]['multipliers'][0][0]:.4g} | {pfs} | "
+              f"{pft} | {len(pts)} | {b['flows_planar']} / {b['flows_3d']} | {b['wall']:.0f} s | "
+              f"{b['stop']} |")
+    print()
+    print("| model | p | whirling: freq, E, stable | beating: freq = 1/T, mean E, leading μ |")
+    print("|---|---|---|---|")
+    for name in MODELS:
+        w, b = load(name, "whirling"), load(name, "beating")
+        if w is None:
+            continue
+        wp = w["points"]
+        bp = b["points"] if b is not None else []
+        for q in bp if bp else wp[:: max(1, len(wp) // 6)]:
+            k = int(np.argmin([abs(r["p"] - q["p"]) for r in wp]))
+            r = wp[k]
+            ws = (f"{r['freq']:.5g}, {r['E']:.4g}, {'yes' if r['n_unstable'] == 0 else 'no'}"
+                  f" (at {r['p']:.5g})")
+            bs = ""
+            if bp:
+                bs = (f"{q['freq']:.5g}, {q['E_mean']:.4g}, {q['multipliers'][0][0]:.4g}"
+                      f"{'' if abs(q['multipliers'][0][1]) < 1e-9 else ' (complex)'}")
+            print(f"| {name} | {q['p']:.5g} | {ws} | {bs} |")
+
+
 def plot() -> None:
     import matplotlib
 
@@ -399,11 +471,15 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=400, help="BDF2 steps per period (paper: 400)")
     ap.add_argument("--budget", type=float, default=np.inf,
                     help="wall-time budget (s) of the beating continuation")
+    ap.add_argument("--table", action="store_true", help="print the markdown tables")
     ap.add_argument("--plot", action="store_true", help="only draw figures from the JSON results")
     a = ap.parse_args()
     FIG.mkdir(parents=True, exist_ok=True)
     if a.plot:
         plot()
+        return
+    if a.table:
+        table()
         return
     run_model(a.model, a.part.split(","), a.quick, a.steps, a.budget)
 

@@ -4,7 +4,7 @@
 
     contfil run SPEC [--out DIR] [--resume] [--no-plots] [--quiet]
     contfil simulate SPEC [--out DIR]
-    contfil export RUN --format json|graphml [-o FILE]
+    contfil export RUN --format json|graphml [-o FILE] [--states]
     contfil plot RUN [--out DIR] [--observable NAME]
     contfil show RUN
 
@@ -30,6 +30,9 @@ def _parser() -> argparse.ArgumentParser:
         prog="contfil",
         description="Numerical continuation and bifurcation analysis (contfil).",
     )
+    from contfil import __version__
+
+    p.add_argument("--version", action="version", version=f"contfil {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     r = sub.add_parser("run", help="run a study: continue, switch, store, plot")
@@ -48,6 +51,9 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("run", help="run directory")
     e.add_argument("--format", choices=("json", "graphml"), default="json")
     e.add_argument("-o", "--output", help="output file (default: RUN/graph.<format>)")
+    e.add_argument("--states", action="store_true",
+                   help="export only the state graph: branches as nodes, one edge per "
+                        "bifurcation joining two (summaries, no point data)")
 
     pl = sub.add_parser("plot", help="write a run's figures as PNG")
     pl.add_argument("run", help="run directory")
@@ -83,6 +89,21 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from contfil.io.store import load_run_graph
 
     g = load_run_graph(args.run)
+    if args.states:
+        import json
+
+        import networkx as nx
+
+        from contfil.io.atomic import atomic_write_bytes, atomic_write_text
+
+        out = Path(args.output) if args.output else Path(args.run) / f"states.{args.format}"
+        sg = g.state_graph()
+        if args.format == "json":
+            atomic_write_text(out, json.dumps(nx.node_link_data(sg, edges="edges")))
+        else:
+            atomic_write_bytes(out, "\n".join(nx.generate_graphml(sg)).encode("utf-8"))
+        print(out)
+        return 0
     out = Path(args.output) if args.output else Path(args.run) / f"graph.{args.format}"
     if args.format == "json":
         if out.resolve() == (Path(args.run) / "graph.json").resolve():

@@ -57,8 +57,15 @@ def test_export_and_show(default_run: Path, tmp_path: Path, capsys) -> None:
     out_j = tmp_path / "g.json"
     assert main(["export", str(default_run), "--format", "json", "-o", str(out_j)]) == 0
     assert json.loads(out_j.read_text())["directed"] is True
-    assert main(["show", str(default_run)]) == 0
+    out_s = tmp_path / "states.graphml"
+    assert main(["export", str(default_run), "--format", "graphml", "--states",
+                 "-o", str(out_s)]) == 0
+    S = nx.read_graphml(out_s, force_multigraph=True)
     g = BranchGraph.load_json(default_run / "graph.json")
+    assert set(S.nodes) == set(g.branches)
+    S.graph.clear()  # the reader's empty default-attribute dicts
+    assert nx.utils.graphs_equal(S, g.state_graph())
+    assert main(["show", str(default_run)]) == 0
     out = capsys.readouterr().out
     assert all(g.g.nodes[s]["label"] in out for s in g.special_points)
 
@@ -152,6 +159,7 @@ def test_simulate_filament_relaxes_below_instability(tmp_path: Path) -> None:
     summary = json.loads((tmp_path / "sim" / "summary.json").read_text())
     assert summary["max_constraint_residual"] < 1e-12
     assert (tmp_path / "sim" / "snapshots.png").stat().st_size > 10_000
+    assert (tmp_path / "sim" / "observables.png").exists()
 
 
 def test_default_run_directory_never_reused(tmp_path: Path, monkeypatch) -> None:

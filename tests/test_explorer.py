@@ -296,3 +296,47 @@ def test_mirror_whirling_waves_are_one_state_up_to_symmetry() -> None:
     assert np.sign(a.points[-1].extra["omega"]) == -np.sign(b.points[-1].extra["omega"])
     assert not same_branch(a, b)  # different states as plain vectors ...
     assert same_branch(a, b, m.symmetries)  # ... one state up to a mirror
+
+
+def test_whirling_branch_agrees_with_time_integration(tmp_path) -> None:
+    """Cross-check of two independent routes: the whirling state continued as a
+    rotating wave, and a perturbed upright filament integrated in time at the
+    same f (BDF2 stepper) settle on the same bending energy and rotation speed."""
+    from pathlib import Path
+
+    from contfil.graph.study import run_study
+    from contfil.io.spec import loads_spec
+    from contfil.models.filament.stepper import trajectory
+
+    f = 45.0
+    text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
+    text = (text.replace("N = 20", "N = 8").replace("range = [0.0, 70.0]", f"range = [0.0, {f}]")
+            .replace("ds_max = 2.0", "ds_max = 4.0"))
+    text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
+                        'kinds = ["double_hopf"]\nbranches = ["equilibrium", "rotating_wave"]')
+    spec = loads_spec(text)
+    res = run_study(spec, out=tmp_path / "run", plots=False, progress=Progress(enabled=False))
+    whirl = res.graph.branch("B1")
+    last = whirl.points[-1]
+    assert whirl.kind == "rotating_wave" and last.p == f  # the engine lands on the bound
+    info = ea.build_model(spec)
+    m = info.model
+    u0 = 1e-2 * np.random.default_rng(1).standard_normal(m.dim)
+    errors = []
+    for dt in (2e-3, 1e-3):
+        tr = trajectory(m, u0, np.array([f]), T=1.6, dt=dt, out_every=int(round(5e-3 / dt)))
+        late = tr.t > 1.4
+        # The model's own bending-energy formula on the integrated states.
+        E = np.array([m.observables(u, np.array([f]))["bending_energy"]
+                      for u in tr.states[late]])
+        tip = tr.observables["tip"][late]
+        az = np.unwrap(np.arctan2(tip[:, 1], tip[:, 0]))
+        speed = abs(np.polyfit(tr.t[late], az, 1)[0])
+        assert np.ptp(E) < 1e-4 * E.mean()  # settled on a rotating wave: constant energy
+        errors.append((abs(E.mean() - last.observables["bending_energy"]),
+                       abs(speed - abs(last.extra["omega"]))))
+    # dt = 1e-3: agreement to ~1e-5 relative in energy, ~1e-3 in rotation speed ...
+    assert errors[1][0] < 1e-4 * E.mean() and errors[1][1] < 2e-3 * speed
+    # ... and the gap closes like dt^2 (BDF2): the stepper converges to the
+    # rotating wave found by continuation.
+    assert 3.0 < errors[0][1] / errors[1][1] < 5.5

@@ -20,6 +20,7 @@ from contfil.models.filament.kernels import bdf2_solver as K
 from contfil.models.filament.stepper import (
     BDF2Stepper,
     _maps,
+    attach_flow,
     embed_planar,
     flow,
     project_planar,
@@ -262,8 +263,10 @@ def test_constraint_and_kinematic_residuals_long_run(tip_ff: FilamentModel) -> N
     # position equations solved to tol * dL (tol on the dL-scaled residual)
     assert tr.max_kinematic_residual <= 1e-12 * tip_ff.dL * 1.0001
     assert np.all(d.residual <= 1e-12)
-    # quaternions stay unit: the frames are genuine rotations
-    assert np.all(np.isfinite(tr.states))
+    # the recorded Lie states rebuild the stepper's frames: the model's own
+    # geometry gives the same free end as the stepper's observable
+    tips = np.array([tip_ff.centreline(u)[-1] for u in tr.states])
+    assert np.max(np.abs(tips - tr.observables["tip"])) < 1e-12
 
 
 # --------------------------------------------------------------------------
@@ -362,6 +365,12 @@ def test_failed_step_is_rescued_by_substeps() -> None:
     U = st.step(4)
     assert st.rescued == [0]
     assert np.all(st.last_diagnostics.residual <= 1e-12)
+    # the same through trajectory(): recording across the rescued step
+    tr = trajectory(m, U0, p, 2e-4, steps=4, out_every=1)
+    assert tr.extra["rescued_steps"] == [0]
+    assert tr.states.shape == (5, U0.size)
+    assert np.array_equal(tr.states[-1], U)
+    assert np.all(np.isfinite(tr.states)) and np.max(np.abs(tr.states[1] - U0)) > 0
     half = flow(m, U0, p, 2e-4, steps=8)  # needs no rescue
     # the filament moves by ~0.6 in these 4 steps; the runs agree to a few per cent
     assert np.max(np.abs(U - half)) < 0.1 * np.max(np.abs(half - U0))
@@ -388,12 +397,26 @@ def test_flow_is_smooth_for_finite_differences(tip_ff: FilamentModel) -> None:
     assert np.linalg.norm(d1 - d2) < 1e-5 * np.linalg.norm(d1)
 
 
+def test_attach_flow_on_a_scene_holder() -> None:
+    class Holder:
+        scene = Scene(N=N, strength=20.0)
+        param_names = ("f",)
+
+    h = attach_flow(Holder(), steps_per_unit=1000)
+    U0 = bent_state()
+    a = h.flow(U0, np.array([20.0]), 0.01)  # 10 steps by default
+    b = flow(h, U0, np.array([20.0]), 0.01, steps=10)
+    assert np.array_equal(a, b)
+
+
 def test_model_flow_hook_delegates_here(tip_ff: FilamentModel) -> None:
     p = tip_ff.default_params()
     U0 = bent_state()
     a = tip_ff.flow(U0, p, 0.01, steps=10)
     b = flow(tip_ff, U0, p, 0.01, steps=10)
     assert np.array_equal(a, b)
+    # the engine calls model.flow(u, p, T): 400 equal steps by default
+    assert np.array_equal(tip_ff.flow(U0, p, 0.01), flow(tip_ff, U0, p, 0.01, steps=400))
     tr = trajectory(tip_ff, U0, p, 0.01, steps=10, out_every=5)
     assert tr.states.shape == (3, U0.size)
     assert np.allclose(tr.states[-1], a, atol=1e-13)

@@ -70,6 +70,17 @@ def test_record_log_drops_torn_tail_before_appending(tmp_path: Path) -> None:
     assert [r["i"] for r in RecordLog(path).read()[0]] == list(range(6))
 
 
+def test_record_log_refuses_mid_file_corruption(tmp_path: Path) -> None:
+    path = tmp_path / "log.jsonl"
+    lines = [encode_record({"i": i}) for i in range(4)]
+    bad = bytearray(lines[1])
+    bad[12] ^= 0x01
+    path.write_bytes(lines[0] + bytes(bad) + lines[2] + lines[3])
+    with pytest.raises(ContfilError, match="corrupt record at byte"):
+        RecordLog(path).open_append()
+    assert path.read_bytes().count(b"\n") == 4  # nothing truncated
+
+
 def test_atomic_write_leaves_no_temporary(tmp_path: Path) -> None:
     p = atomic_write_json(tmp_path / "m.json", {"a": 1})
     atomic_write_json(p, {"a": 2})
@@ -165,11 +176,55 @@ def test_kill_inside_rotating_wave_branch_then_resume(tmp_path: Path) -> None:
              {"CONTFIL_TEST_CRASH_AFTER": str(n_root + 4)})
     p.wait(timeout=120)
     assert p.returncode == -signal.SIGKILL
-    res = run_study(spec, out=run, resume=True, progress=Progress(enabled=False))
+    calls: list[str] = []
+    res = run_study(spec, out=run, resume=True, progress=Progress(enabled=False),
+                    switchers=_counting_switchers(calls)())
+    # The unfinished whirling branch needs its problem: its switch is redone, once.
+    assert calls == ["double_hopf"]
     _assert_equal_runs(ref.graph, res.graph)
     for a, b in zip(ref.graph.branch("B1").points, res.graph.branch("B1").points, strict=True):
         assert abs(a.extra["omega"] - b.extra["omega"]) <= 1e-12
     assert res.n_computed_points == _check_logs(run) - (n_root + 4)
+
+
+def _counting_switchers(calls: list[str]):
+    """The engine's switchers (rotating waves only), recording each call."""
+    from contfil.graph.engine_adapter import default_switchers
+    from contfil.graph.seeds import SwitcherRegistry
+
+    base = default_switchers(branch_kinds=("equilibrium", "rotating_wave"))
+
+    def make():
+        reg = SwitcherRegistry()
+        for kind in base.kinds():
+            def fn(sp, br, pb, kind=kind):
+                calls.append(kind)
+                return base.seeds(sp, br, pb)
+            reg.register(kind, fn)
+        return reg
+
+    return make
+
+
+def test_resume_reuses_stored_switches(tmp_path: Path) -> None:
+    """Switches are recorded: resuming a finished study recomputes none (see
+    the rotating-wave kill test for an unfinished branch: one switch redone)."""
+    calls: list[str] = []
+    counting = _counting_switchers(calls)
+
+    spec_path = tmp_path / "o2.toml"
+    spec_path.write_text(O2_SPEC)
+    spec = load_spec(spec_path)
+    ref = run_study(spec, out=tmp_path / "ref", switchers=counting(),
+                    progress=Progress(enabled=False))
+    assert calls == ["double_hopf"]
+    again = run_study(spec, out=tmp_path / "ref", resume=True, switchers=counting(),
+                      progress=Progress(enabled=False))
+    assert calls == ["double_hopf"]  # nothing recomputed
+    assert again.n_computed_points == 0
+    _assert_equal_runs(ref.graph, again.graph)
+    sp = again.graph.special_point("S0")
+    assert sp.data["not_followed"] == ref.graph.special_point("S0").data["not_followed"]
 
 
 def test_injected_kills_then_resume_equal_uninterrupted(reference, tmp_path: Path,

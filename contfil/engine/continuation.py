@@ -671,13 +671,26 @@ class Continuation:
             for ev in self.events:
                 for j in ev.crossed(prev.values[ev.name], rec.values[ev.name]):
                     hits.append((ev, j))
-            # suppressed_by may name events or special-point kinds
+            # suppressed_by may name events or special-point kinds. An event is
+            # hidden only by a special point actually found in this step (a
+            # detection rejected at localisation, e.g. a pole of a bordered
+            # test function, must not hide a fold).
             hit_keys = {ev.name for ev, _ in hits} | {ev.kind for ev, _ in hits}
-            hits = [(ev, j) for ev, j in hits if not (set(ev.suppressed_by) & hit_keys)]
-            for ev, j in hits:
+            first = [(ev, j) for ev, j in hits if not (set(ev.suppressed_by) & hit_keys)]
+            later = [(ev, j) for ev, j in hits if set(ev.suppressed_by) & hit_keys]
+            found: set[str] = set()
+            for ev, j in first:
                 sp = self._localise(ev, j, prev, rec)
                 if sp is not None:
                     new_special.append(sp)
+                    found |= {ev.name, sp[1].kind}
+            for ev, j in later:
+                if set(ev.suppressed_by) & found:
+                    continue
+                sp = self._localise(ev, j, prev, rec)
+                if sp is not None:
+                    new_special.append(sp)
+                    found |= {ev.name, sp[1].kind}
             for ev in self.events:
                 rec.values[ev.name] = ev.accepted(ctx, rec.values[ev.name])
         self.branch.points.append(pt)

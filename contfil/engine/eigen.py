@@ -126,14 +126,16 @@ def shift_invert_stability(
     )
 
 
-def inverse_from_dense(J: Array, sigma: float) -> Callable[[Array], Array]:
-    """``(J - sigma I)^{-1}`` applied through one LU factorisation."""
+def inverse_from_dense(J: Array, sigma: complex) -> Callable[[Array], Array]:
+    """``(J - sigma I)^{-1}`` applied through one LU factorisation (``sigma``
+    may be complex)."""
     lu = sla.lu_factor(J - sigma * np.eye(J.shape[0]), check_finite=False)
     return lambda v: sla.lu_solve(lu, v, check_finite=False)
 
 
-def inverse_from_sparse(J, sigma: float) -> Callable[[Array], Array]:  # noqa: ANN001
-    """``(J - sigma I)^{-1}`` for a scipy sparse ``J`` through ``splu``."""
+def inverse_from_sparse(J, sigma: complex) -> Callable[[Array], Array]:  # noqa: ANN001
+    """``(J - sigma I)^{-1}`` for a scipy sparse ``J`` through ``splu``
+    (``sigma`` may be complex)."""
     import scipy.sparse as sp
     from scipy.sparse.linalg import splu
 
@@ -142,15 +144,29 @@ def inverse_from_sparse(J, sigma: float) -> Callable[[Array], Array]:  # noqa: A
 
 
 def inverse_from_jvp(
-    jvp: Callable[[Array], Array], n: int, sigma: float, rtol: float = 1e-8
+    jvp: Callable[[Array], Array], n: int, sigma: complex, rtol: float = 1e-8
 ) -> Callable[[Array], Array]:
     """``(J - sigma I)^{-1}`` by GMRES on a matrix-free ``jvp`` (slow: last resort).
 
     A finite-difference ``jvp`` is only accurate to about 1e-10 relative, so
     the default ``rtol`` stays above that floor; a solve that ends with a
-    relative residual above ``1e3 rtol`` raises.
+    relative residual above ``1e3 rtol`` raises. A complex ``sigma`` gives
+    a complex operator (two real products per application).
     """
-    op = LinearOperator((n, n), matvec=lambda v: jvp(np.asarray(v, float).ravel()) - sigma * v)
+    if complex(sigma).imag == 0.0:
+        s_re = float(complex(sigma).real)
+        op = LinearOperator(
+            (n, n), matvec=lambda v: jvp(np.asarray(v, float).ravel()) - s_re * v
+        )
+    else:
+        sc = complex(sigma)
+
+        def mv_c(v: NDArray) -> NDArray:
+            v = np.asarray(v, complex).ravel()
+            re, im = np.ascontiguousarray(v.real), np.ascontiguousarray(v.imag)
+            return jvp(re) + 1j * jvp(im) - sc * v
+
+        op = LinearOperator((n, n), matvec=mv_c, dtype=complex)
 
     def solve(v: Array) -> Array:
         x, info = gmres(op, v, rtol=rtol, atol=0.0, restart=min(n, 100), maxiter=20)
@@ -169,3 +185,106 @@ def complex_pairs(values: NDArray, imag_tol: float = 1e-8) -> NDArray:
     """Members with ``Im > imag_tol * max(1, |lambda|)`` (one per conjugate pair)."""
     v = np.asarray(values, dtype=complex)
     return v[v.imag > imag_tol * np.maximum(1.0, np.abs(v))]
+
+
+def complex_shift_stability(
+    apply_inverse: Callable[[NDArray], NDArray],
+    n: int,
+    sigma: complex,
+    k: int = 4,
+    *,
+    vectors: bool = False,
+    tol: float = 1e-10,
+    matvec: Callable[[Array], Array] | None = None,
+) -> Stability:
+    """Eigenvalues of a *real* matrix nearest a complex shift ``sigma``.
+
+    Shift-invert Arnoldi on the complex operator ``(J - sigma I)^{-1}``;
+    since ``J`` is real, the conjugate of every non-real eigenvalue found is
+    added (with the conjugate vector). Used to follow eigenvalues near
+    ``i omega`` on the imaginary axis that are not among those nearest a
+    real shift.
+
+    Parameters
+    ----------
+    apply_inverse:
+        ``v -> (J - sigma I)^{-1} v`` on complex vectors.
+    n, sigma, k:
+        Dimension, complex shift, number of eigenvalues near ``sigma``.
+    matvec:
+        ``v -> J v`` on real vectors, to report the eigen-residual.
+    """
+    if k >= n - 1:
+        raise ValueError(f"complex_shift_stability: k={k} must be < n-1={n - 1}")
+    sig = complex(sigma)
+    op = LinearOperator(
+        (n, n), matvec=lambda v: apply_inverse(np.asarray(v, complex).ravel()), dtype=complex
+    )
+    try:
+        nu, V = eigs(op, k=k, which="LM", tol=tol, return_eigenvectors=True)
+    except ArpackNoConvergence as exc:
+        raise ConvergenceError(
+            f"complex shift-invert Arnoldi (n={n}, k={k}, sigma={sig}) did not converge: {exc}"
+        ) from None
+    lam = sig + 1.0 / nu
+    # J is real: add the conjugates of the non-real eigenvalues.
+    nonreal = np.abs(lam.imag) > 1e-9 * np.maximum(1.0, np.abs(lam))
+    lam = np.concatenate([lam, np.conj(lam[nonreal])])
+    V = np.concatenate([V, np.conj(V[:, nonreal])], axis=1)
+    res = float("nan")
+    if matvec is not None:
+        res = max(
+            float(
+                np.linalg.norm(matvec(V[:, j].real) + 1j * matvec(V[:, j].imag) - lam[j] * V[:, j])
+            )
+            for j in range(lam.size)
+        )
+    lam, V = sort_leading(lam, V)
+    return Stability(
+        values=lam,
+        kind="eigenvalues",
+        vectors=V if vectors else None,
+        residual=res,
+        info={"method": "complex shift-invert", "sigma": sig, "k": k},
+    )
+
+
+def merge_stability(parts: list[Stability], rtol: float = 1e-6) -> Stability:
+    """Union of partial spectra (e.g. shift-invert at several shifts).
+
+    An eigenvalue of a later part within ``rtol * max(1, |lambda|)`` of a
+    not-yet-matched eigenvalue of the union is the same one (matching is
+    one-to-one, so a multiplicity found by one part is kept). Sorted
+    leading first; ``info["shifts"]`` lists the shifts used.
+    """
+    vals = list(np.asarray(parts[0].values, dtype=complex))
+    keep_vec = all(p.vectors is not None for p in parts)
+    vecs = [parts[0].vectors[:, j] for j in range(len(vals))] if keep_vec else []
+    for part in parts[1:]:
+        pv = np.asarray(part.values, dtype=complex)
+        used = np.zeros(len(vals), dtype=bool)
+        for j, lam in enumerate(pv):
+            if vals:
+                d = np.abs(np.asarray(vals) - lam)
+                d[used] = np.inf
+                i = int(np.argmin(d))
+                if d[i] <= rtol * max(1.0, abs(lam)):
+                    used[i] = True
+                    continue
+            vals.append(lam)
+            used = np.append(used, True)
+            if keep_vec:
+                vecs.append(part.vectors[:, j])
+    V = np.stack(vecs, axis=1) if keep_vec and vecs else None
+    w, V = sort_leading(np.asarray(vals, dtype=complex), V)
+    res = [p.residual for p in parts if np.isfinite(p.residual)]
+    return Stability(
+        values=w,
+        kind="eigenvalues",
+        vectors=V,
+        residual=max(res) if res else float("nan"),
+        info={
+            "method": "shift-invert (several shifts)",
+            "shifts": [p.info.get("sigma") for p in parts],
+        },
+    )

@@ -9,10 +9,12 @@ from numpy.typing import NDArray
 
 from contfil.engine.branch import EQUILIBRIUM
 from contfil.engine.eigen import (
+    complex_shift_stability,
     dense_stability,
     inverse_from_dense,
     inverse_from_jvp,
     inverse_from_sparse,
+    merge_stability,
     shift_invert_stability,
 )
 from contfil.engine.problem_base import Problem, Stability, fd_step
@@ -50,6 +52,17 @@ class EquilibriumProblem(Problem):
         Use ``model.jacobian`` / ``model.jacobian_sparse`` when present
         (``False`` forces the engine's own central differences with
         ``fd_rel``, e.g. to study what the finite-difference step costs).
+    imag_shifts:
+        Large problems: frequencies ``omega > 0`` at which shift-invert
+        Arnoldi is also run (shift ``i omega``, ``max(2, n_eigs // 2)``
+        eigenvalues each), so complex pairs far from ``eig_shift`` (the
+        Hopf candidates of a stiff or oscillatory system) are computed.
+        One complex factorisation (or complex GMRES inverse) per shift and
+        per point.
+    track_pairs:
+        Large problems: also shift at the imaginary parts of the
+        ``track_pairs`` rightmost complex pairs of the previous call, so a
+        pair once seen keeps being computed as it moves (0: off).
     """
 
     kind = EQUILIBRIUM
@@ -65,6 +78,8 @@ class EquilibriumProblem(Problem):
         n_eigs: int = 10,
         eig_shift: float = 0.0,
         use_model_jacobian: bool = True,
+        imag_shifts: Sequence[float] = (),
+        track_pairs: int = 0,
     ) -> None:
         self.model = model
         self.param = param
@@ -82,6 +97,13 @@ class EquilibriumProblem(Problem):
         self.fd_rel = float(fd_rel)
         self.n_eigs = int(n_eigs)
         self.eig_shift = float(eig_shift)
+        self.imag_shifts = tuple(float(w) for w in imag_shifts)
+        if any(not np.isfinite(w) or w < 0 for w in self.imag_shifts):
+            raise SpecError(
+                f"EquilibriumProblem: imag_shifts must be finite and >= 0, got {imag_shifts}"
+            )
+        self.track_pairs = int(track_pairs)
+        self._tracked: list[float] = []
         self.rhs_evals = 0
         self._has_jac = use_model_jacobian and callable(getattr(model, "jacobian", None))
         self._has_sparse_jac = use_model_jacobian and callable(
@@ -157,7 +179,13 @@ class EquilibriumProblem(Problem):
         return self._sp_cache[1]
 
     def stability(self, x: Array, p: float, vectors: bool = False) -> Stability:
-        """Eigenvalues of ``rhs_u`` (all when dense, leading ``n_eigs`` otherwise)."""
+        """Eigenvalues of ``rhs_u`` (all when dense, leading ``n_eigs`` otherwise).
+
+        Large problems: the ``n_eigs`` eigenvalues nearest ``eig_shift`` by
+        shift-invert Arnoldi, plus (with ``imag_shifts`` / ``track_pairs``)
+        the ones nearest ``i omega`` for each scanned or tracked frequency
+        (``info["shifts"]`` lists the shifts used).
+        """
         if self.dense or self.n <= self.n_eigs + 2:
             # (tiny problems on the matrix-free path: Arnoldi needs k < n - 1)
             J = self.jacobian(x, p)
@@ -167,13 +195,47 @@ class EquilibriumProblem(Problem):
                 )
             return dense_stability(J, vectors=vectors)
         k = min(self.n_eigs, self.n - 2)
+        base = self._shift_invert(x, p, self.eig_shift, k, vectors)
+        omegas = self._omegas()
+        if not omegas:
+            return base
+        kc = min(max(2, self.n_eigs // 2), self.n - 2)
+        parts = [base] + [self._shift_invert(x, p, 1j * om, kc, vectors) for om in omegas]
+        st = merge_stability(parts)
+        if self.track_pairs > 0:
+            # Follow the rightmost complex pairs: their frequencies are the
+            # complex shifts of the next call, so a pair once seen stays seen
+            # while it moves towards the axis.
+            v = np.asarray(st.values, dtype=complex)
+            c = v[v.imag > 1e-7 * np.maximum(1.0, np.abs(v))]
+            c = c[np.argsort(-c.real)][: self.track_pairs]
+            self._tracked = [float(z.imag) for z in c]
+        return st
+
+    def _omegas(self) -> list[float]:
+        """Frequencies of the complex shifts: scanned, then tracked (merged
+        when closer than 5 % of the frequency)."""
+        out: list[float] = []
+        for om in [*self.imag_shifts, *self._tracked]:
+            if om <= 0.0:
+                continue
+            if all(abs(om - o) > 0.05 * max(o, 1e-12) for o in out):
+                out.append(float(om))
+        return out
+
+    def _shift_invert(
+        self, x: Array, p: float, sigma: complex, k: int, vectors: bool
+    ) -> Stability:
+        """Eigenvalues nearest one shift (real or complex)."""
+        cplx = complex(sigma).imag != 0.0
+        sig: complex | float = complex(sigma) if cplx else float(complex(sigma).real)
         if self._has_sparse_jac:
             Js = self.sparse_jacobian(x, p)
-            inv = inverse_from_sparse(Js, self.eig_shift)
+            inv = inverse_from_sparse(Js, sig)
             mv = lambda v: Js @ v  # noqa: E731
         elif self._has_jac:
             J = self.jacobian(x, p)
-            inv = inverse_from_dense(J, self.eig_shift)
+            inv = inverse_from_dense(J, sig)
             mv = lambda v: J @ v  # noqa: E731
         else:
             mv = lambda v: self.jvp(x, p, v)  # noqa: E731
@@ -184,19 +246,24 @@ class EquilibriumProblem(Problem):
             v0 = rng.standard_normal(self.n)
             scale = float(np.linalg.norm(mv(v0)) / np.linalg.norm(v0))
             last: Exception | None = None
-            for sig in (
-                self.eig_shift,
-                self.eig_shift + 1e-3 * scale,
-                self.eig_shift - 1e-3 * scale,
-            ):
+            for ds in (0.0, 1e-3 * scale, -1e-3 * scale):
+                s_try = sig + ds
                 try:
-                    inv = inverse_from_jvp(mv, self.n, sig)
-                    return shift_invert_stability(inv, self.n, sig, k, vectors=vectors, matvec=mv)
+                    inv = inverse_from_jvp(mv, self.n, s_try)
+                    if cplx:
+                        return complex_shift_stability(
+                            inv, self.n, s_try, k, vectors=vectors, matvec=mv
+                        )
+                    return shift_invert_stability(
+                        inv, self.n, s_try, k, vectors=vectors, matvec=mv
+                    )
                 except ConvergenceError as exc:
                     last = exc
             assert last is not None
             raise last
-        return shift_invert_stability(inv, self.n, self.eig_shift, k, vectors=vectors, matvec=mv)
+        if cplx:
+            return complex_shift_stability(inv, self.n, sig, k, vectors=vectors, matvec=mv)
+        return shift_invert_stability(inv, self.n, sig, k, vectors=vectors, matvec=mv)
 
     def state(self, x: Array) -> Array:
         return x

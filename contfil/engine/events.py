@@ -236,32 +236,97 @@ class BranchPointEvent(Event):
     (at most 1 in magnitude); it is localised relative to its value at the
     left point, so nothing overflows or underflows for any ``n``.
 
-    Matrix-free problems use the sign of ``det M`` from the spectrum:
-    ``sign det M = sign(tau_p) * sign det G_x`` and ``sign det G_x`` flips
-    exactly when a real eigenvalue crosses zero (for Floquet multipliers:
-    a real multiplier crosses 1), so the test is
-    ``sign(tau_p) * (-1)^(number of real eigenvalues > 0)``, localised on the
-    real eigenvalue nearest zero (signed by that parity). The shift-invert
-    eigenvalues nearest zero are exactly the ones that can cross. Trivial
-    (symmetry) eigenvalues are excluded. (A bordered-solve test with
-    bordering vectors updated along the branch misses later branch points:
-    the vectors converge to the first critical mode and become orthogonal to
-    the next one, so that approach is not used.)
+    Matrix-free problems (``matrix_free="bordered"``, the default) use the
+    minimally augmented test function of Govaerts (2000, ch. 3-4; Kuznetsov
+    2004, §10.2): with bordering vectors ``b, c`` the ``(n+2)`` system ::
+
+        [[M, b], [c^T, 0]] [w; s] = [0; 1]
+
+    is regular near a simple branch point when ``b`` is not in the range of
+    ``M`` and ``c`` not orthogonal to its null vector, and by Cramer's rule
+    ``s = det M / det [[M, b], [c^T, 0]]``: ``s`` changes sign with
+    ``det M``, and ``|s| = |M w| / |w|`` when ``|b| = 1`` and ``c = w/|w|``:
+    a smooth estimate of the smallest singular value. ``c`` is refreshed at every
+    accepted point from the computed ``w`` (the current near-null vector);
+    between two consecutive points both values are taken with the borders
+    of the left point, so ``det [[M, b], [c^T, 0]]`` keeps its sign across
+    the step. ``b`` is a fixed random unit vector: since ``w ∝ M^{-1} b``,
+    the solve picks the current near-null direction in one shot, whatever
+    happened at earlier branch points (bordering vectors refined only by
+    inverse iteration lock onto the first critical mode, which is what made
+    an earlier version miss later branch points). A sign change through a
+    pole (the borders turning orthogonal to the null vector within one step)
+    is rejected at localisation: there ``|s|`` grows instead of vanishing.
+    Cost: one bordered Krylov solve per accepted point (a sparse LU of the
+    ``(n+2)`` matrix when ``problem.sparse_jacobian`` exists) and one per
+    localisation iterate; no eigenvalues are needed.
+
+    ``matrix_free="spectral"`` keeps the older test
+    ``sign(tau_p) * (-1)^(number of real eigenvalues > 0)`` (for multipliers:
+    real multipliers above 1), which only sees eigenvalues among the
+    ``n_eigs`` computed ones.
+
+    Parameters
+    ----------
+    kind, name:
+        Special-point kind and unique event name.
+    imag_tol:
+        Relative imaginary part below which an eigenvalue is real (spectral test).
+    matrix_free:
+        ``"bordered"`` or ``"spectral"`` (test for non-dense problems).
+    rtol:
+        GMRES tolerance of the bordered solve (default: ``settings.krylov``
+        ``"bp_rtol"``, else ``"tangent_rtol"``, else 1e-9).
+    seed:
+        Seed of the random bordering vector ``b``.
     """
 
     name = "branch_point"
 
     def __init__(
-        self, kind: str = BRANCH_POINT, name: str = "branch_point", imag_tol: float = 1e-7
+        self,
+        kind: str = BRANCH_POINT,
+        name: str = "branch_point",
+        imag_tol: float = 1e-7,
+        matrix_free: str = "bordered",
+        rtol: float | None = None,
+        seed: int = 20_001,
     ) -> None:
+        if matrix_free not in ("bordered", "spectral"):
+            raise ValueError(
+                f"BranchPointEvent: matrix_free must be 'bordered' or 'spectral', "
+                f"got {matrix_free!r}"
+            )
         self.kind = kind
         self.name = name
         self.imag_tol = imag_tol
+        self.matrix_free = matrix_free
+        self.rtol = rtol
+        self.seed = int(seed)
+        self._b: Array | None = None
+        self._w: Array | None = None  # last solution, warm start
+        self._version = 0
+        self._cs: dict[int, Array] = {}
+        self._alpha = 1.0
+        self._pending: tuple[int, float] | None = None
+        self._prev_ctx: EventContext | None = None
+        self._loc_version = 0
+        self._found_in_step = False
+        self._problem_id: int | None = None
+        # Cost counters of the bordered test (matrix-free problems).
+        self.stats: dict[str, int] = {"solves": 0, "matvecs": 0, "direct": 0}
 
-    @staticmethod
-    def _dense(ctx: EventContext) -> bool:
+    def _dense(self, ctx: EventContext) -> bool:
         return bool(ctx.problem.dense) and not np.isnan(ctx.log_det)
 
+    def _bordered(self, ctx: EventContext) -> bool:
+        return (
+            self.matrix_free == "bordered"
+            and not self._dense(ctx)
+            and ctx.apply_bordered is not None
+        )
+
+    # --- spectral test (older matrix-free path, kept as an option) ----------
     def _spectral(self, ctx: EventContext) -> tuple[float, float]:
         st = ctx.stability
         v = np.asarray(st.values, dtype=complex)
@@ -275,10 +340,216 @@ class BranchPointEvent(Event):
         near = float(np.min(np.abs(real))) if real.size else 1.0
         return parity * tp, near
 
+    # --- bordered (minimally augmented) test -------------------------------
+    def _rtol(self, ctx: EventContext) -> float:
+        if self.rtol is not None:
+            return float(self.rtol)
+        kr = ctx.settings.krylov
+        return float(kr.get("bp_rtol", kr.get("tangent_rtol", 1e-9)))
+
+    def _solve_bordered(self, ctx: EventContext, c: Array) -> tuple[Array, float]:
+        """``[w; s]`` solving ``[[M, b], [c^T, 0]] [w; s] = [0; 1]`` at ``ctx``."""
+        assert self._b is not None and ctx.apply_bordered is not None
+        b = self._b
+        m = b.size  # n + 1
+        rhs = np.zeros(m + 1)
+        rhs[-1] = 1.0
+        self.stats["solves"] += 1
+        pb = ctx.problem
+        spj = getattr(pb, "sparse_jacobian", None)
+        Js = spj(ctx.x, ctx.p) if callable(spj) else None
+        if Js is not None and ctx.gp is not None:
+            import scipy.sparse as sp
+            from scipy.sparse.linalg import splu
+
+            # Exact: sparse LU of the (n+2) bordered matrix (one dense row and
+            # column each; COLAMD keeps the fill small).
+            n = m - 1
+            tau_row = self._alpha * ctx.weights * ctx.tangent
+            K = sp.bmat(
+                [
+                    [Js, sp.csr_matrix(ctx.gp.reshape(n, 1)), sp.csr_matrix(b[:n].reshape(n, 1))],
+                    [
+                        sp.csr_matrix(tau_row[:n].reshape(1, n)),
+                        sp.csr_matrix(tau_row[n:].reshape(1, 1)),
+                        sp.csr_matrix(b[n:].reshape(1, 1)),
+                    ],
+                    [
+                        sp.csr_matrix(c[:n].reshape(1, n)),
+                        sp.csr_matrix(c[n:].reshape(1, 1)),
+                        None,
+                    ],
+                ],
+                format="csc",
+            )
+            y = splu(K).solve(rhs)
+            self.stats["direct"] += 1
+        else:
+            from scipy.sparse.linalg import LinearOperator, gmres
+
+            apply_m = ctx.apply_bordered
+            alpha = self._alpha
+            nmv = [0]
+
+            def mv(v: Array) -> Array:
+                v = np.asarray(v, dtype=float).ravel()
+                nmv[0] += 1
+                top = apply_m(v[:m])
+                top[-1] *= alpha
+                return np.concatenate([top + v[m] * b, [float(c @ v[:m])]])
+
+            P0 = ctx.precondition
+            P = None
+            if P0 is not None:
+
+                def P(v: Array) -> Array:  # ~ (D M)^{-1} = M^{-1} D^{-1}
+                    v = np.array(v, dtype=float)
+                    v[-1] /= alpha
+                    return P0(v)
+
+            Mop = None
+            if P is not None:
+                # Block elimination with P ~ M^{-1}: x = P f - y P b,
+                # c.x = g  =>  y = (c.P f - g) / (c.P b).
+                Pb = P(b)
+                cPb = float(c @ Pb)
+                if cPb != 0.0 and np.isfinite(cPb):
+
+                    def prec(v: Array) -> Array:
+                        v = np.asarray(v, dtype=float).ravel()
+                        Pf = P(v[:m])
+                        y = (float(c @ Pf) - v[m]) / cPb
+                        return np.concatenate([Pf - y * Pb, [y]])
+
+                    Mop = LinearOperator((m + 1, m + 1), matvec=prec)
+            x0 = None
+            if self._w is not None and self._w.size == m + 1:
+                x0 = self._w
+            y, _ = gmres(
+                LinearOperator((m + 1, m + 1), matvec=mv),
+                rhs,
+                x0=x0,
+                rtol=self._rtol(ctx),
+                atol=0.0,
+                restart=min(m + 1, 60),
+                maxiter=30,
+                M=Mop,
+            )
+            self.stats["matvecs"] += nmv[0]
+        if not np.all(np.isfinite(y)):
+            return y[:m], float("nan")
+        self._w = y.copy()
+        return y[:m], float(y[m])
+
+    def _borders_init(self, ctx: EventContext) -> None:
+        m = ctx.X.size
+        rng = np.random.default_rng(self.seed)
+        b = rng.standard_normal(m)
+        self._b = b / np.linalg.norm(b)
+        c = rng.standard_normal(m)
+        c = c / np.linalg.norm(c)
+        self._w = None
+        # Scale the tangent row of M to the size of G_x (a positive row
+        # factor leaves the sign of det M alone): with the weighted row alone
+        # (size ~1) the parameter direction is often the smallest singular
+        # mode and swamps the critical one in w ~ M^{-1} b.
+        r = rng.standard_normal(m)
+        r[-1] = 0.0
+        gx = np.asarray(ctx.apply_bordered(r), dtype=float)[:-1]  # type: ignore[misc]
+        row = float(np.linalg.norm(ctx.weights * ctx.tangent))
+        scale = float(np.linalg.norm(gx) / np.linalg.norm(r))
+        self._alpha = scale / row if np.isfinite(scale) and scale > 0 and row > 0 else 1.0
+        self.stats["matvecs"] += 1
+        # One refinement: c from the near-null vector of the first point.
+        w, _ = self._solve_bordered(ctx, c)
+        nw = float(np.linalg.norm(w))
+        self._cs = {1: w / nw if np.isfinite(nw) and nw > 0 else c}
+        self._version = 1
+        self._pending = None
+        self._prev_ctx = None
+        self._problem_id = id(ctx.problem)
+
+    def _value(self, ctx: EventContext, version: int) -> tuple[Array, float]:
+        """``(w, s)`` at ``ctx`` with the borders of ``version`` (cached)."""
+        key = ("bp_bordered", self.name, version)
+        hit = ctx.cache.get(key)
+        if hit is None:
+            hit = self._solve_bordered(ctx, self._cs[version])
+            ctx.cache[key] = hit
+        return hit
+
+    def _new_borders(self, ctx: EventContext, w: Array, s: float) -> int | None:
+        """Store ``c = w/|w|`` as a new border version; the same solve then
+        gives ``(w/|w|, s/|w|)`` at ``ctx`` (``c_old . w = 1 > 0``: same sign)."""
+        nw = float(np.linalg.norm(w))
+        if not (np.isfinite(nw) and nw > 0 and np.isfinite(s)):
+            return None
+        ver = max(self._cs) + 1
+        self._cs[ver] = w / nw
+        ctx.cache[("bp_bordered", self.name, ver)] = (w / nw, s / nw)
+        return ver
+
+    def _bordered_values(self, ctx: EventContext) -> Array:
+        """``[s(X1; c_left), s(X1; c_right)]`` at a new point ``X1``.
+
+        ``c_left`` are the borders of the last accepted point ``X0``,
+        ``c_right`` the near-null vector at ``X1``; ``s(X0; c_right)`` is
+        computed too (one more solve) so that the step is tested with both
+        border sets: a zero of ``s`` is seen by both, a pole (the borders
+        orthogonal to the null vector somewhere in the step) only by one,
+        and the near-null vector at ``X1`` is the mode that just crossed.
+        """
+        if (
+            self._b is None
+            or self._b.size != ctx.X.size
+            or self._problem_id != id(ctx.problem)
+            or self._prev_ctx is None
+        ):
+            self._borders_init(ctx)
+            s = self._value(ctx, 1)[1]
+            return np.array([s, s])
+        self._found_in_step = False
+        w, s = self._value(ctx, self._version)
+        ver = self._new_borders(ctx, w, s)
+        if ver is None:
+            return np.array([s, s])
+        s_left = self._value(self._prev_ctx, ver)[1]
+        self._pending = (ver, float(s_left))
+        return np.array([s, self._value(ctx, ver)[1]])
+
+    # --- Event API -------------------------------------------------------------
     def values(self, ctx: EventContext) -> Array:
         if self._dense(ctx):
             return np.array([ctx.bp_test_dense()])
+        if self._bordered(ctx):
+            return self._bordered_values(ctx)
         return np.array([self._spectral(ctx)[0]])
+
+    def crossed(self, v0: Array, v1: Array) -> list[int]:
+        v0, v1 = np.atleast_1d(v0), np.atleast_1d(v1)
+        if v0.size != 2 or v1.size != 2 or self._pending is None:
+            return super().crossed(v0[:1], v1[:1])
+        # component 1: both ends with the right borders; 0: with the left ones.
+        # Both are localised when both flip (one may be a pole); the second
+        # is dropped if the first gave a branch point.
+        out = []
+        if np.sign(self._pending[1]) * np.sign(v1[1]) < 0:
+            out.append(1)
+        if np.sign(v0[0]) * np.sign(v1[0]) < 0:
+            out.append(0)
+        return out
+
+    def accepted(self, ctx: EventContext, values: Array) -> Array:
+        if not self._bordered(ctx):
+            return values
+        if self._pending is not None:
+            self._version = self._pending[0]
+            self._pending = None
+            # keep only the borders still needed
+            self._cs = {self._version: self._cs[self._version]}
+        self._prev_ctx = ctx
+        s = float(np.atleast_1d(values)[-1])
+        return np.array([s, s])
 
     def localiser(self, ctx0, ctx1, j):  # noqa: ANN001, ANN201
         if self._dense(ctx0):
@@ -287,6 +558,13 @@ class BranchPointEvent(Event):
             return lambda ctx: (
                 0.0 if ctx.log_det == -np.inf else float(ctx.det_sign * np.exp(ctx.log_det - ref))
             )
+        if self._bordered(ctx0):
+            # The same borders at both ends and every trial point.
+            ver = self._version
+            if j == 1 and self._pending is not None:
+                ver = self._pending[0]
+            self._loc_version = ver
+            return lambda ctx: float(self._value(ctx, ver)[1])
         left = self._spectral(ctx0)[0]
 
         def g(ctx: EventContext) -> float:
@@ -296,21 +574,47 @@ class BranchPointEvent(Event):
         return g
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
-        return self.kind, {
-            "test_value": float(self.values(ctx)[0])
-            if self._dense(ctx)
-            else self._spectral(ctx)[1],
-            "switchable": True,
-            "tangent": ctx.tangent.copy(),
-        }
+        data: dict[str, Any] = {"switchable": True, "tangent": ctx.tangent.copy()}
+        if self._dense(ctx):
+            data["test_value"] = float(self.values(ctx)[0])
+            return self.kind, data
+        if not self._bordered(ctx):
+            data["test_value"] = self._spectral(ctx)[1]
+            return self.kind, data
+        if self._found_in_step:
+            return None  # the other border set already gave this branch point
+        ver = self._loc_version
+        w, s = self._value(ctx, ver)
+        s0 = abs(self._value(ctx0, ver)[1])
+        s1 = abs(self._value(ctx1, ver)[1])
+        if not np.isfinite(s) or abs(s) > 0.1 * min(s0, s1):
+            # |s| grew instead of vanishing: the sign change was a pole of s
+            # (borders orthogonal to the null vector), not a branch point.
+            return None
+        nw = float(np.linalg.norm(w))
+        data.update(
+            {
+                "test_value": float(s),
+                "test": "bordered",
+                # |M w| / |w| = |s| |b| / |w|: smallest-singular-value estimate
+                "singular_value_estimate": abs(float(s)) / nw if nw > 0 else float("nan"),
+                "null_vector": (w / nw)[:-1].copy() if nw > 0 else None,
+                "test_values_bracket": (float(s0), float(s1)),
+            }
+        )
+        self._found_in_step = True
+        return self.kind, data
 
 
 class HopfEvent(Event):
     """Hopf bifurcation(s) of equilibria: complex pairs crossing the axis.
 
-    Detection: the number of unstable complex pairs changes *and* the
-    number of unstable eigenvalues changes (so two real eigenvalues merging
-    into a complex pair on one side of the axis is not a Hopf point).
+    Detection: the number of unstable complex pairs changes (counted by
+    eigenvalue type, so a pair crossing in the same step as real eigenvalues
+    crossing the other way is still seen even when the total unstable count
+    does not change). Two real eigenvalues merging into a pair on the
+    unstable side also change that count; such a detection is localised
+    and rejected by ``accept_tol`` (the real part does not vanish there).
     Localisation: on the real part of the complex eigenvalue nearest the
     imaginary axis, with its sign taken from the pair count so the secant
     iteration stays bracketed even when eigenvalues swap order.
@@ -353,12 +657,25 @@ class HopfEvent(Event):
     def values(self, ctx: EventContext) -> Array:
         st = ctx.stability
         c = self._complex(st)
-        return np.array([float(np.sum(c.real > 0)), float(st.n_unstable)])
+        n_c = float(np.sum(c.real > 0))
+        n_u = float(st.n_unstable)
+        # [unstable complex pairs, all unstable, unstable real eigenvalues]
+        return np.array([n_c, n_u, n_u - 2.0 * n_c])
 
     def crossed(self, v0: Array, v1: Array) -> list[int]:
-        if v0[0] != v1[0] and v0[1] != v1[1]:
-            return [0]
-        return []
+        v0, v1 = np.atleast_1d(v0), np.atleast_1d(v1)
+        if v0[0] == v1[0]:
+            return []
+        if v0.size < 3 or v1.size < 3:
+            return [0] if v0[1] != v1[1] else []
+        # Counted by type: a pair crossing changes the complex count by one
+        # and leaves the real count alone. A change of the complex count
+        # with the real count changing by exactly -2x it is either two real
+        # eigenvalues merging into a pair on the unstable side (no
+        # bifurcation) or a Hopf with two real eigenvalues crossing the
+        # other way in the same step; both are localised and the merge is
+        # rejected there (its real part does not vanish, see accept_tol).
+        return [0]
 
     def localiser(self, ctx0, ctx1, j):  # noqa: ANN001, ANN201
         left = self.values(ctx0)[0]
@@ -424,7 +741,7 @@ class HopfEvent(Event):
             "v_im": pairs[0]["v_im"],
             "pairs": pairs,
             "switchable": True,
-            "direction": "unstable" if d1[1] > d0[1] else "stable",
+            "direction": "unstable" if d1[0] > d0[0] else "stable",
         }
         if mult >= 2:
             data["v2_re"] = pairs[1]["v_re"]

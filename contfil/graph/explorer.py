@@ -30,7 +30,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from contfil.engine.branch import Branch, Point, SpecialPoint
+from contfil.engine.branch import Branch, Point, SpecialPoint, decode, encode
 from contfil.errors import ContfilError
 from contfil.graph.branch_graph import BranchGraph
 from contfil.graph.identity import IdentityTolerance
@@ -217,6 +217,7 @@ class Explorer:
         self.n_computed_points = 0  # points computed now (not read back)
         self.n_tasks = 0
         self._dedup_done: dict[int, bool] = {}
+        self._resolved: dict[str, list[Seed]] = {}
 
     # ------------------------------------------------------------------ run
     def run(self) -> BranchGraph:
@@ -246,11 +247,11 @@ class Explorer:
                 if self.store:
                     self.store.set_task(f"T{k - 1:04d}", duplicate_of=bid)
                 continue
-            self.problems[bid] = task.seed.problem
+            self.problems[bid] = task.seed.problem  # may be pending (resolve on use)
             branch.meta.setdefault("origin", task.seed.label or "root")
             branch.meta.setdefault("depth", task.depth)
             self.graph.update_branch(bid, branch)
-            for sp in branch.special_points:
+            for jsp, sp in enumerate(branch.special_points):
                 sid, sp_new = self.graph.add_special_point(bid, sp)
                 node = self.graph.g.nodes[sid]
                 if sp_new and sp.kind not in self.switchers:
@@ -265,16 +266,9 @@ class Explorer:
                     continue
                 self.progress.status(f"switching at {node['label']} ({sp.kind}, "
                                      f"{branch.param}={sp.point.p:.6g}) ...")
-                seeds = self.switchers.seeds(sp, branch, task.seed.problem)
+                seeds = self._switch(f"T{k - 1:04d}_{jsp}", sp, branch, task, node["label"])
                 self.graph.mark_switched(sid)
-                if s.branch_kinds is not None:
-                    skipped = [sd.kind for sd in seeds if sd.kind not in s.branch_kinds]
-                    if skipped:
-                        sp.data["not_followed"] = skipped
-                    seeds = [sd for sd in seeds if sd.kind in s.branch_kinds]
-                for j, sd in enumerate(seeds):
-                    if not sd.label:
-                        sd.label = f"{node['label']}#{j}"
+                for sd in seeds:
                     queue.append(_Task(sd, task.depth + 1, sid))
             if self.store:
                 self.store.save_graph(self.graph)
@@ -284,6 +278,65 @@ class Explorer:
         self.n_tasks = k
         self.progress.close()
         return self.graph
+
+    # ------------------------------------------------------------ switching
+    def _switch(self, key: str, sp: SpecialPoint, branch: Branch, task: _Task,
+                label: str) -> list[Seed]:
+        """Seeds leaving ``sp``; recorded in the store, so that a resumed run
+        does not redo a (possibly costly) switch unless it needs the new
+        problems themselves (see :class:`_PendingProblem`)."""
+        rec = self.store.load_switch(key) if self.store else None
+        if rec is not None:
+            sp.data.update(decode(rec.get("sp_data", {})))
+            return [self._pending_seed(key, i, d, sp, branch, task)
+                    for i, d in enumerate(rec["seeds"])]
+        seeds = self._compute_switch(sp, branch, task, label)
+        if self.store:
+            self.store.save_switch(key, {
+                "seeds": [_seed_record(sd) for sd in seeds],
+                "sp_data": encode({k: sp.data[k] for k in ("not_followed", "switch_error")
+                                   if k in sp.data}),
+            })
+        return seeds
+
+    def _compute_switch(self, sp: SpecialPoint, branch: Branch, task: _Task,
+                        label: str) -> list[Seed]:
+        s = self.settings
+        seeds = self.switchers.seeds(sp, branch, self._problem(task.seed))
+        if s.branch_kinds is not None:
+            skipped = [sd.kind for sd in seeds if sd.kind not in s.branch_kinds]
+            if skipped:
+                sp.data["not_followed"] = skipped
+            seeds = [sd for sd in seeds if sd.kind in s.branch_kinds]
+        for j, sd in enumerate(seeds):
+            if not sd.label:
+                sd.label = f"{label}#{j}"
+        return seeds
+
+    def _pending_seed(self, key: str, i: int, d: dict[str, Any], sp: SpecialPoint,
+                      branch: Branch, task: _Task) -> Seed:
+        def resolve() -> Any:
+            if key not in self._resolved:
+                self._resolved[key] = self._compute_switch(sp, branch, task, "")
+            seeds = self._resolved[key]
+            if i >= len(seeds) or not np.allclose(seeds[i].x0, d["x0"], rtol=1e-9, atol=1e-12):
+                raise ContfilError(
+                    f"resume: the switch {key} now gives other seeds than the stored ones; "
+                    "the model or the code changed since the run was started")
+            return seeds[i].problem
+
+        return Seed(
+            problem=_PendingProblem(d["kind"], d["param"], int(d["n"]), resolve),
+            x0=np.asarray(d["x0"], dtype=float), p0=float(d["p0"]),
+            direction=int(d["direction"]),
+            tangent=None if d["tangent"] is None else np.asarray(d["tangent"], dtype=float),
+            both_directions=d["both_directions"], label=d["label"], info=d.get("info", {}))
+
+    def _problem(self, seed: Seed) -> Any:
+        """The seed's problem, computing a pending one now (see :meth:`_switch`)."""
+        if isinstance(seed.problem, _PendingProblem):
+            seed.problem = seed.problem.resolve()
+        return seed.problem
 
     # ------------------------------------------------------------ branches
     def _branch_from_seed(self, k: int, task: _Task) -> tuple[Branch, str | None]:
@@ -355,6 +408,10 @@ class Explorer:
             else:
                 log.header(seed.fingerprint(), direction)
         reason = self._stop_reason(points, seed, task, check_dup)
+        if reason is None:
+            # Outside the try: a resume that cannot rebuild the seed's problem
+            # consistently must stop the run, not end this branch quietly.
+            self._problem(seed)
         try:
             if reason is None:
                 steps = self.continuer(seed, direction, self.cont_settings, resume)
@@ -381,6 +438,39 @@ class Explorer:
             log.end(reason)
             log.close()
         return points, specials, reason
+
+
+class _PendingProblem:
+    """Stands for the problem of a seed read back from a switch record.
+
+    Carries what the explorer reads without solving anything (``kind``,
+    ``param``, ``n``); :meth:`resolve` recomputes the switch when the problem
+    itself is needed (to continue an unfinished branch or switch further).
+    """
+
+    def __init__(self, kind: str, param: str, n: int, resolver: Callable[[], Any]) -> None:
+        self.kind = kind
+        self.param = param
+        self.n = n
+        self._resolver = resolver
+
+    def resolve(self) -> Any:
+        return self._resolver()
+
+
+def _seed_record(sd: Seed) -> dict[str, Any]:
+    return {
+        "kind": sd.kind,
+        "param": str(getattr(sd.problem, "param", "p")),
+        "n": int(getattr(sd.problem, "n", np.asarray(sd.x0).size)),
+        "x0": np.asarray(sd.x0, dtype=float).tolist(),
+        "p0": float(sd.p0),
+        "direction": int(sd.direction),
+        "tangent": None if sd.tangent is None else np.asarray(sd.tangent, float).tolist(),
+        "both_directions": sd.both_directions,
+        "label": sd.label,
+        "info": encode(sd.info),
+    }
 
 
 def _check_seed(name: str, header: dict[str, Any], seed: Seed, direction: int) -> None:

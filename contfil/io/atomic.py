@@ -115,18 +115,30 @@ class RecordLog:
         self._fh: Any = None
 
     def read(self) -> tuple[list[Any], int]:
-        """All valid records and the byte length of the valid prefix."""
+        """All valid records and the byte length of the valid prefix.
+
+        Only the *last* record may be invalid (a torn append). An invalid
+        record followed by valid ones is damage of another kind (disk, hand
+        edit): that raises instead of silently dropping the later records.
+        """
         if not self.path.exists():
             return [], 0
         records: list[Any] = []
         good = 0
         with open(self.path, "rb") as fh:
-            for line in fh:
-                obj = decode_record(line)
-                if obj is None:
-                    break
-                records.append(obj)
-                good += len(line)
+            lines = fh.readlines()
+        for k, line in enumerate(lines):
+            obj = decode_record(line)
+            if obj is None:
+                if any(decode_record(rest) is not None for rest in lines[k + 1:]):
+                    from contfil.errors import ContfilError
+
+                    raise ContfilError(
+                        f"{self.path}: corrupt record at byte {good} followed by valid ones "
+                        "(not a torn write); refusing to truncate, please inspect the file")
+                break
+            records.append(obj)
+            good += len(line)
         return records, good
 
     def open_append(self) -> list[Any]:

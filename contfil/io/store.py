@@ -8,6 +8,8 @@ Layout of a run directory::
       spec.toml           the spec the run was started with
       tasks/T0000+.jsonl  one append-only record log per continuation task
                           (seed x direction): header, points, special points, end
+      switches/*.json     seeds produced at each switch (a resume reuses them
+                          instead of recomputing the switch when it can)
       graph.json          the branch graph, node-link JSON (atomically replaced
                           after every finished task)
       graph.graphml       GraphML export (at the end)
@@ -233,6 +235,18 @@ class RunStore:
         self.manifest["status"] = status
         self.manifest.update(info)
         self.write_manifest()
+
+    def save_switch(self, key: str, record: dict[str, Any]) -> None:
+        """Store the seeds a switch produced (atomically)."""
+        atomic_write_json(self.root / "switches" / f"{key}.json", record)
+
+    def load_switch(self, key: str) -> dict[str, Any] | None:
+        """A stored switch record, or ``None``."""
+        path = self.root / "switches" / f"{key}.json"
+        if not path.exists():
+            return None
+        with open(path, encoding="utf-8") as fh:
+            return json.load(fh)
 
     @property
     def graph_path(self) -> Path:

@@ -48,7 +48,24 @@ STATUS_NAMES = {
 }
 
 
-@njit(cache=True)
+# Reassociation lets LLVM vectorise the O(n^2) loops (2x faster at n = 120);
+# it only changes round-off in H, which is an approximation anyway. No
+# "nnan"/"ninf" flags: the non-finite checks must keep working.
+_FAST = {"reassoc", "contract"}
+
+
+@njit(cache=True, fastmath=_FAST)
+def neg_matvec(H: np.ndarray, r: np.ndarray, out: np.ndarray) -> None:
+    """``out = -H r`` without allocation."""
+    n = r.shape[0]
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += H[i, j] * r[j]
+        out[i] = -acc
+
+
+@njit(cache=True, fastmath=_FAST)
 def inverse_update(
     H: np.ndarray, s: np.ndarray, y: np.ndarray, Hy: np.ndarray, sH: np.ndarray
 ) -> bool:

@@ -93,6 +93,10 @@ from .scene import Scene
 
 Array = NDArray[np.float64]
 
+#: Steps per ``flow`` call when neither ``steps`` nor ``dt`` is given: the
+#: paper's ``dt = T/400`` when ``T`` is a period.
+DEFAULT_FLOW_STEPS = 400
+
 
 @dataclass(frozen=True)
 class FilamentPhysics:
@@ -586,7 +590,8 @@ def flow(
 ) -> Array:
     """The flow map ``phi_T(u)`` by ``n`` equal BDF2 steps (first: backward Euler).
 
-    ``n = steps`` or ``ceil(T/dt)``, ``dt_eff = T/n``; with ``steps`` fixed
+    ``n = steps`` or ``ceil(T/dt)`` (neither given: ``n = 400``, the paper's
+    ``dt = T/400`` for a period ``T``), ``dt_eff = T/n``; with ``steps`` fixed
     the result is a smooth function of ``u`` and ``T`` (up to the Broyden
     tolerance), as finite-difference shooting and Floquet analysis need.
     ``u`` is the model's state (3D ``U``, or planar ``phi``); ``stepper_kw``
@@ -597,6 +602,8 @@ def flow(
     global error cancels (third order; measured in docs/performance.md), and
     the result is still a smooth function of ``u`` and ``T``.
     """
+    if steps is None and dt is None:
+        steps = DEFAULT_FLOW_STEPS
     n = _n_steps(T, steps, dt)
     u = np.asarray(u, dtype=float)
     if not np.all(np.isfinite(u)):

@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..broyden import MAXITER, NONFINITE, OK, STALL, inverse_update, max_abs
+from ..broyden import MAXITER, NONFINITE, OK, STALL, inverse_update, max_abs, neg_matvec
 from .elastic import elastic_moments, elastic_torques
 from .forces import follower_forces, segment_loads
 from .geometry import positions, tangents
@@ -640,11 +640,8 @@ def _solve_step(
     while res > tol:
         if it >= max_iter:
             return MAXITER, it, res, builds
+        neg_matvec(H, r, s)
         for i in range(nz):
-            acc = 0.0
-            for j in range(nz):
-                acc += H[i, j] * r[j]
-            s[i] = -acc
             z[i] += s[i]
         residual(
             z, rn, qk, xk, xkm1, uk, coef, phys, wff, wsf, hydro, zmap, rmap, scale, q, X, rfull
