@@ -17,7 +17,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
+import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -168,6 +170,10 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _terminate(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 COMMANDS = {"run": _cmd_run, "simulate": _cmd_simulate, "export": _cmd_export,
             "plot": _cmd_plot, "show": _cmd_show}
 
@@ -176,6 +182,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``contfil`` console script; returns the exit status."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     args = _parser().parse_args(argv)
+    if threading.current_thread() is threading.main_thread():
+        # `kill` (SIGTERM) ends like Ctrl-C: what is stored is kept, one line says so.
+        signal.signal(signal.SIGTERM, _terminate)
     try:
         return COMMANDS[args.command](args)
     except (SpecError, ContfilError) as exc:

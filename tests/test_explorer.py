@@ -141,6 +141,10 @@ def test_filament_upright_double_hopf_whirling(tmp_path) -> None:
     text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
     text = (text.replace("N = 20", "N = 8").replace("max_points = 100", "max_points = 16")
             .replace("ds_max = 2.0", "ds_max = 4.0"))
+    # Beating (shooting) has its own, slower test.
+    text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
+                        'kinds = ["double_hopf", "hopf", "branch_point"]\n'
+                        'branches = ["equilibrium", "rotating_wave"]')
     res = run_study(loads_spec(text), out=tmp_path / "run", plots=False,
                     progress=Progress(enabled=False))
     g = res.graph
@@ -340,3 +344,36 @@ def test_whirling_branch_agrees_with_time_integration(tmp_path) -> None:
     # ... and the gap closes like dt^2 (BDF2): the stepper converges to the
     # rotating wave found by continuation.
     assert 3.0 < errors[0][1] / errors[1][1] < 5.5
+
+
+def test_filament_beating_born_unstable_at_double_hopf(tmp_path) -> None:
+    """Beating (the standing wave of the O(2) double Hopf, a planar periodic
+    orbit by shooting) starts with period 2 pi / omega_H and is unstable at
+    birth, as the paper reports (small N = 6 filament, a few points)."""
+    from pathlib import Path
+
+    from contfil.graph.study import run_study
+    from contfil.io.spec import loads_spec
+
+    text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
+    text = (text.replace("N = 20", "N = 6").replace("max_points = 100", "max_points = 5")
+            .replace("ds_max = 2.0", "ds_max = 4.0").replace("ds = 0.5", "ds = 2.0")
+            .replace("range = [0.0, 70.0]", "range = [30.0, 45.0]")
+            .replace("[continuation]", "[continuation]\nstart = 30.0"))
+    text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
+                        'kinds = ["double_hopf"]\nbranches = ["equilibrium", "periodic_orbit"]')
+    res = run_study(loads_spec(text), out=tmp_path / "run", plots=False,
+                    progress=Progress(enabled=False))
+    g = res.graph
+    (sid,) = g.special_points
+    dh = g.special_point(sid)
+    assert dh.kind == "double_hopf"
+    beat = [g.branch(b) for b in g.branches if g.branch(b).kind == "periodic_orbit"]
+    assert len(beat) == 1 and len(beat[0].points) >= 3
+    first = beat[0].points[0]
+    T_hopf = 2 * np.pi / abs(dh.data["omega"])
+    assert abs(first.extra["period"] - T_hopf) < 2e-3 * T_hopf
+    assert abs(first.p - dh.point.p) < 0.1
+    for pt in beat[0].points:
+        assert pt.n_unstable >= 1  # unstable at birth (and just after)
+        assert abs(pt.observables["tip_y"]) < 1e-10  # planar: the x-z plane

@@ -278,3 +278,21 @@ def test_random_sigkill_then_resume_equal_uninterrupted(reference, tmp_path: Pat
     res = run_study(load_spec(spec_path), out=run, resume=True, progress=Progress(enabled=False))
     _assert_equal_runs(ref.graph, res.graph)
     _check_logs(run)
+
+
+def test_sigterm_stops_cleanly_and_resumes(reference, tmp_path: Path) -> None:
+    spec_path, ref = reference
+    run = tmp_path / "run"
+    p = _cli(["run", str(spec_path), "--out", str(run), "--quiet"])
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 60 and p.poll() is None:
+        logs = list((run / "tasks").glob("*.jsonl")) if (run / "tasks").exists() else []
+        if sum(f.stat().st_size for f in logs) > 10_000:
+            p.send_signal(signal.SIGTERM)
+            break
+        time.sleep(0.002)
+    _, err = p.communicate(timeout=60)
+    assert p.returncode == 130
+    assert err.decode().strip().endswith("interrupted (resume with --resume)")
+    res = run_study(load_spec(spec_path), out=run, resume=True, progress=Progress(enabled=False))
+    _assert_equal_runs(ref.graph, res.graph)

@@ -183,6 +183,9 @@ class RunStore:
                 )
             self.manifest["status"] = "running"
             self.manifest["resumed"] = int(self.manifest.get("resumed", 0)) + 1
+            # Temporaries of atomic writes cut short by the interruption.
+            for tmp in list(self.root.glob(".*.tmp")) + list(self.root.glob("*/.*.tmp")):
+                tmp.unlink(missing_ok=True)
         else:
             if self.root.exists() and any(self.root.iterdir()):
                 raise ContfilError(

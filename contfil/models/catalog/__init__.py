@@ -10,6 +10,7 @@ from contfil.models.catalog.chafee_infante import chafee_infante
 from contfil.models.catalog.normal_forms import (
     CatalogEntry,
     hopf_2d,
+    hopf_with_real_pair,
     o2_hopf,
     pitchfork,
     saddle_node,
@@ -26,6 +27,7 @@ __all__ = [
     "brusselator_1d",
     "chafee_infante",
     "hopf_2d",
+    "hopf_with_real_pair",
     "o2_hopf",
     "pitchfork",
     "saddle_node",

@@ -65,7 +65,9 @@ class Brusselator1D(FunctionModel):
     ``B = 1 + A^2`` with ``omega = A``, and no Turing instability interferes.
     """
 
-    def __init__(self, N: int = 50, A: float = 2.0, d: float = 0.1, B0: float = 1.0) -> None:
+    def __init__(
+        self, N: int = 50, A: float = 2.0, d: float = 0.1, B0: float = 1.0, d_y: float | None = None
+    ) -> None:
         self.N = int(N)
         self.h = 1.0 / N
         e = np.ones(N)
@@ -73,12 +75,15 @@ class Brusselator1D(FunctionModel):
         Lap[0, N - 1] = 1.0
         Lap[N - 1, 0] = 1.0
         self._D = (d / self.h**2) * sp.csr_matrix(Lap)
-        D = self._D
+        self._Dy = self._D if d_y is None else (float(d_y) / self.h**2) * sp.csr_matrix(Lap)
+        D, Dy = self._D, self._Dy
 
         def f(u: Array, p: Array) -> Array:
             x, y = u[:N], u[N:]
             a, b = p
-            return np.concatenate([a - (b + 1) * x + x * x * y + D @ x, b * x - x * x * y + D @ y])
+            return np.concatenate(
+                [a - (b + 1) * x + x * x * y + D @ x, b * x - x * x * y + Dy @ y]
+            )
 
         super().__init__(
             f,
@@ -99,16 +104,41 @@ class Brusselator1D(FunctionModel):
         return sp.bmat(
             [
                 [sp.diags(-(b + 1) + 2 * x * y) + self._D, sp.diags(x * x)],
-                [sp.diags(b - 2 * x * y), sp.diags(-x * x) + self._D],
+                [sp.diags(b - 2 * x * y), sp.diags(-x * x) + self._Dy],
             ],
             format="csr",
         )
 
 
-def brusselator_1d(N: int = 50, A: float = 2.0, d: float = 0.1, B0: float = 1.0) -> CatalogEntry:
+def brusselator_1d(
+    N: int = 50, A: float = 2.0, d: float = 0.1, B0: float = 1.0, d_y: float | None = None
+) -> CatalogEntry:
     """Periodic 1-D Brusselator continued in ``B``; ``exact["hopf"] = 1 + A^2``,
-    ``exact["omega"] = A`` (the uniform mode)."""
-    m = Brusselator1D(N, A, d, B0)
+    ``exact["omega"] = A`` (the uniform mode).
+
+    With ``d_y`` (diffusivity of ``y``, default ``d``) the modal Jacobians
+    are ``[[B - 1 - d q, A^2], [-B, -A^2 - d_y q]]``; the uniform mode still
+    gives the Hopf point above, and ``exact["turing"]`` is the first ``B``
+    where a mode ``k >= 1`` has a zero eigenvalue,
+    ``B - 1 = (A^2 + d A^2 q + d d_y q^2) / (d_y q)`` minimised over the grid
+    wavenumbers ``q_k = (4/h^2) sin^2(pi k / N)`` (a double real crossing:
+    the ``cos`` and ``sin`` modes), ``exact["turing_k"]`` its ``k``. The
+    Hopf point is the first instability when ``turing > hopf``.
+    """
+    m = Brusselator1D(N, A, d, B0, d_y)
+    dy = d if d_y is None else float(d_y)
+    k = np.arange(1, N // 2 + 1)
+    q = (4.0 * N * N) * np.sin(np.pi * k / N) ** 2
+    bt = 1.0 + (A * A + d * A * A * q + d * dy * q * q) / (dy * q)
     return CatalogEntry(
-        m, "B", m.initial_state(m.default_params()), B0, {"hopf": 1.0 + A * A, "omega": A}
+        m,
+        "B",
+        m.initial_state(m.default_params()),
+        B0,
+        {
+            "hopf": 1.0 + A * A,
+            "omega": A,
+            "turing": float(np.min(bt)),
+            "turing_k": int(k[np.argmin(bt)]),
+        },
     )

@@ -166,3 +166,62 @@ def o2_hopf(omega: float = 1.5, a: float = -1.0, b: float = -2.0, p0: float = -1
     )
     m = FunctionModel(f, 4, {"mu": p0, "omega": omega}, name="o2_hopf", symmetries=sym)
     return CatalogEntry(m, "mu", np.zeros(4), p0, {"hopf": 0.0, "omega": omega, "multiplicity": 2})
+
+
+def hopf_with_real_pair(
+    omega: float = 3.0,
+    delta: float = 0.01,
+    n_damped: int = 0,
+    kappa: tuple[float, float] = (0.2, 0.6),
+    p0: float = -0.3,
+) -> CatalogEntry:
+    """A Hopf pair and a double real eigenvalue crossing the other way::
+
+        (x, y)' = Hopf normal form: eigenvalues mu +- i omega, cubic -r^2 (x, y)
+        z' = (delta - mu) z - |z|^2 z,   z in R^2 (O(2): a double eigenvalue)
+        w_j' = -kappa_j w_j - w_j^3,     j = 1..n_damped (decoupled, stable)
+
+    On ``u = 0`` the pair crosses into the right half plane at ``mu = 0``
+    while the double real eigenvalue ``delta - mu`` leaves it at
+    ``mu = delta``: for ``mu < 0`` and for ``delta < mu`` two eigenvalues
+    are unstable, so a step over ``[0, delta]`` keeps the total unstable
+    count. ``kappa_j`` spread over ``kappa``: with ``kappa`` inside
+    ``(0, omega)`` the damped modes are the eigenvalues nearest the origin,
+    not the critical pair. ``exact``: ``hopf = 0``, ``omega``,
+    ``real_crossing = delta``.
+    """
+    nd = int(n_damped)
+    kap = np.linspace(kappa[0], kappa[1], nd) if nd else np.zeros(0)
+    n = 4 + nd
+
+    def f(u: Array, p: Array) -> Array:
+        mu = p[0]
+        x, y, z1, z2 = u[:4]
+        r2, q2 = x * x + y * y, z1 * z1 + z2 * z2
+        out = np.empty(n)
+        out[0] = mu * x - omega * y - r2 * x
+        out[1] = omega * x + mu * y - r2 * y
+        out[2] = (delta - mu) * z1 - q2 * z1
+        out[3] = (delta - mu) * z2 - q2 * z2
+        w = u[4:]
+        out[4:] = -kap * w - w**3
+        return out
+
+    def jac(u: Array, p: Array) -> Array:
+        mu = p[0]
+        x, y, z1, z2 = u[:4]
+        r2, q2 = x * x + y * y, z1 * z1 + z2 * z2
+        J = np.zeros((n, n))
+        J[0, :2] = [mu - r2 - 2 * x * x, -omega - 2 * x * y]
+        J[1, :2] = [omega - 2 * x * y, mu - r2 - 2 * y * y]
+        J[2, 2:4] = [delta - mu - q2 - 2 * z1 * z1, -2 * z1 * z2]
+        J[3, 2:4] = [-2 * z1 * z2, delta - mu - q2 - 2 * z2 * z2]
+        J[4:, 4:] = np.diag(-kap - 3 * u[4:] ** 2)
+        return J
+
+    m = FunctionModel(
+        f, n, {"mu": p0}, name=f"hopf_with_real_pair_n{n}", jacobian=jac, u0=np.zeros(n)
+    )
+    return CatalogEntry(
+        m, "mu", np.zeros(n), p0, {"hopf": 0.0, "omega": omega, "real_crossing": delta}
+    )
