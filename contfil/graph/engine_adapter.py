@@ -233,7 +233,11 @@ def restart_seed(graph: Any, bid: str, index: int, problem: Any,
     """
     pt = graph.point(bid, index)
     tail = [float(pt.extra[k]) for k in ("omega", "period", "drift") if k in pt.extra]
-    x = np.concatenate([np.asarray(pt.u, dtype=float), tail])
+    u = np.asarray(pt.u, dtype=float)
+    sub = getattr(problem, "subspace", None)
+    if sub is not None and u.size + len(tail) != problem.n:
+        u = np.asarray(sub.project(u), dtype=float)  # solved in an invariant subspace
+    x = np.concatenate([u, tail])
     if x.size != problem.n:
         raise ContfilError(
             f"restart_seed: point {index} of {bid} has {x.size} unknowns, the problem {problem.n}")

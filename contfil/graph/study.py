@@ -114,6 +114,9 @@ def run_study(
         progress=progress,
         meta=meta,
     )
+    explorer.progress.message(
+        f"{'resuming' if resume else 'run'} {spec.name}: writing to {run_dir} "
+        f"(`contfil show {run_dir}` reports progress)")
     graph = explorer.run()
     files = [store.save_graph(graph)]
     if spec.output["graphml"]:
