@@ -59,9 +59,11 @@ FIG = ROOT / "docs" / "figures"
 MODELS: dict[str, dict[str, Any]] = {
     "tip_ff": {"bracket": (30.0, 36.0), "w_pmax": 400.0, "b_pmax": 250.0, "label": "f"},
     "dis_ff": {"bracket": (3.0, 4.5), "w_pmax": 60.0, "b_pmax": 30.0, "label": "f",
-               "w_dsmax": 1.0},
-    "tip_sf": {"bracket": (220.0, 250.0), "w_pmax": 4000.0, "b_pmax": 2000.0, "label": "b1"},
-    "dis_sf": {"bracket": (55.0, 75.0), "w_pmax": 2500.0, "b_pmax": 1000.0, "label": "b1"},
+               "w_dsmax": 1.0, "b_dx": 1.5},
+    "tip_sf": {"bracket": (220.0, 250.0), "w_pmax": 4000.0, "b_pmax": 2000.0, "label": "b1",
+               "b_dx": 1.5},
+    "dis_sf": {"bracket": (55.0, 75.0), "w_pmax": 2500.0, "b_pmax": 1000.0, "label": "b1",
+               "b_dx": 1.5},
 }
 
 
@@ -211,7 +213,8 @@ def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick
                "trivial": [_c(z) for z in pt.eigenvalues[pt.trivial]],
                "eig_residual": pt.accuracy.get("eig_residual", np.nan),
                "wall_point": pt.cost.get("wall_time", np.nan),
-               "flows_planar": pb.solve_model.flow_calls, "flows_3d": pb.model.flow_calls}
+               "flows_planar": pb.solve_model.flow_calls, "flows_3d": pb.model.flow_calls,
+               "x": x.tolist()}
         pts.append(rec)
         print(f"[beating] {pt.p:10.5g} T={T:.6g} n_unst={pt.n_unstable} "
               f"mu={np.round(pt.eigenvalues[~pt.trivial][:4], 5)} "
@@ -396,9 +399,10 @@ def table() -> None:
               f"{pts[0]['p']:.5g} – {pts[-1]['p']:.5g} | "
               f"{pts[0]['multipliers'][0][0]:.5g} → {pts[-1]['multipliers'][0][0]:.4g} | {pfs} | "
               f"{pft} | {len(pts)} | {b['flows_planar']} / {b['flows_3d']} | {b['wall']:.0f} s | "
-              f"{b['stop']} |")
+              f"{b['stop'] or '2 points past the pitchfork'} |")
     print()
-    print("| model | p | whirling: freq, E, stable | beating: freq = 1/T, mean E, leading μ |")
+    print("| model | p | whirling (interpolated): freq, E, stable |"
+          " beating: freq = 1/T, mean E, leading μ |")
     print("|---|---|---|---|")
     for name in MODELS:
         w, b = load(name, "whirling"), load(name, "beating")
@@ -406,11 +410,14 @@ def table() -> None:
             continue
         wp = w["points"]
         bp = b["points"] if b is not None else []
+        # whirling is monotone in p (no fold found): interpolate at the beating points
+        wpp = np.array([r["p"] for r in wp])
+        o = np.argsort(wpp)
         for q in bp if bp else wp[:: max(1, len(wp) // 6)]:
-            k = int(np.argmin([abs(r["p"] - q["p"]) for r in wp]))
-            r = wp[k]
-            ws = (f"{r['freq']:.5g}, {r['E']:.4g}, {'yes' if r['n_unstable'] == 0 else 'no'}"
-                  f" (at {r['p']:.5g})")
+            fr = float(np.interp(q["p"], wpp[o], np.array([r["freq"] for r in wp])[o]))
+            en = float(np.interp(q["p"], wpp[o], np.array([r["E"] for r in wp])[o]))
+            k = int(np.argmin(np.abs(wpp - q["p"])))
+            ws = f"{fr:.5g}, {en:.4g}, {'yes' if wp[k]['n_unstable'] == 0 else 'no'}"
             bs = ""
             if bp:
                 bs = (f"{q['freq']:.5g}, {q['E_mean']:.4g}, {q['multipliers'][0][0]:.4g}"

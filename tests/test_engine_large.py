@@ -50,7 +50,9 @@ def test_chafee_infante_first_four_branch_points_bordered_test(N, kw):
     e = chafee_infante(N)
     pb = EquilibriumProblem(e.model, "lambda", **kw)
     ev = BranchPointEvent()
-    s = ContinuationSettings(ds=0.2, ds_max=0.5, p_max=17.0, compute_stability=False)
+    s = ContinuationSettings(
+        ds=0.2, ds_max=0.5, p_max=17.0, compute_stability=False, krylov={"bp_rtol": 1e-10}
+    )
     br = continue_branch(pb, e.u0, 0.0, s, events=[FoldEvent(), ev])
     bps = _kind(br, BRANCH_POINT)
     exact = e.exact["bps"][:4]
@@ -63,8 +65,10 @@ def test_chafee_infante_first_four_branch_points_bordered_test(N, kw):
         phi, mode = sp.data["null_vector"], e.exact["mode"](k)
         assert abs(phi @ mode) / (np.linalg.norm(phi) * np.linalg.norm(mode)) > 1 - 1e-6
         assert sp.data["singular_value_estimate"] < 1e-6
-    # cost: two bordered solves per accepted point, one per localisation iterate
-    assert ev.stats["solves"] <= 2 * len(br.points) + 40 * len(bps) + 4
+    # cost: two bordered solves per border set and accepted point, plus one
+    # per localisation iterate
+    k = ev.n_borders
+    assert ev.stats["solves"] <= 2 * k * len(br.points) + k + 15 * len(bps)
 
 
 def test_bordered_test_is_silent_at_a_fold_and_spectral_option_kept():
@@ -172,3 +176,16 @@ def test_complex_shift_and_merge_exact_spectrum():
     # the double -0.2 from the real shift is kept twice, nothing duplicated
     assert np.sum(np.abs(st.values + 0.2) < 1e-8) == 2
     assert np.sum(np.abs(st.values - (-0.1 + 5j)) < 1e-8) == 1
+
+
+@pytest.mark.parametrize("seed", [1, 4])
+def test_bordered_test_with_long_steps_and_other_random_borders(seed):
+    """Six branch points with steps up to ~3 in lambda (several modes move
+    by O(1) per step): every border seed finds all of them exactly."""
+    e = chafee_infante(60)
+    pb = EquilibriumProblem(e.model, "lambda", dense_threshold=10)
+    s = ContinuationSettings(ds=0.2, ds_max=2.0, p_max=40.0, compute_stability=False)
+    br = continue_branch(pb, e.u0, 0.0, s, events=[FoldEvent(), BranchPointEvent(seed=seed)])
+    exact = e.exact["bps"][e.exact["bps"] < 40.0]
+    assert exact.size == 6
+    np.testing.assert_allclose([sp.point.p for sp in _kind(br, BRANCH_POINT)], exact, atol=1e-8)

@@ -1,4 +1,4 @@
-"""Large-problem path (Krylov corrector, shift-invert eigenvalues, spectral
+"""Large-problem path (Krylov corrector, shift-invert eigenvalues, bordered
 branch-point test) against exact branch points of a discretised PDE."""
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ def _bps(br):
     "N,kw",
     [
         (60, {}),  # dense: determinant test
-        (60, {"dense_threshold": 10}),  # sparse LU-preconditioned Krylov, spectral test
+        (60, {"dense_threshold": 10}),  # sparse LU-preconditioned Krylov, bordered test
         (16, {"dense_threshold": 4, "use_model_jacobian": False}),  # pure finite differences
     ],
 )

@@ -84,8 +84,10 @@ class ContinuationSettings:
         Store ``problem.observables`` (if the problem has it) at each point.
     krylov:
         Options for the matrix-free corrector (``gmres_rtol``,
-        ``gmres_restart``, ``gmres_maxiter``) and ``tangent_rtol`` for the
-        GMRES solve of the tangent (default 1e-7).
+        ``gmres_restart``, ``gmres_maxiter``), ``tangent_rtol`` for the
+        GMRES solve of the tangent (default 1e-7) and ``bp_rtol`` for the
+        bordered branch-point solves (default ``tangent_rtol`` when set,
+        else 1e-9).
     verbose:
         Print one line per accepted point.
     """
@@ -301,7 +303,7 @@ class Continuation:
             return newton_dense(
                 F, lambda X: self._jac_aug(X, border), X0, s.newton_tol, s.newton_max_iter
             )
-        kw = {k: v for k, v in s.krylov.items() if k != "tangent_rtol"}
+        kw = {k: v for k, v in s.krylov.items() if k not in ("tangent_rtol", "bp_rtol")}
         P = self._aug_preconditioner(X0, border)
         if P is not None:
             kw.setdefault("preconditioner", P)

@@ -240,26 +240,29 @@ class BranchPointEvent(Event):
     minimally augmented test function of Govaerts (2000, ch. 3-4; Kuznetsov
     2004, §10.2): with bordering vectors ``b, c`` the ``(n+2)`` system ::
 
-        [[M, b], [c^T, 0]] [w; s] = [0; 1]
+        [[D M, b], [c^T, 0]] [w; s] = [0; 1],   D = diag(1, .., 1, alpha)
 
     is regular near a simple branch point when ``b`` is not in the range of
     ``M`` and ``c`` not orthogonal to its null vector, and by Cramer's rule
-    ``s = det M / det [[M, b], [c^T, 0]]``: ``s`` changes sign with
-    ``det M``, and ``|s| = |M w| / |w|`` when ``|b| = 1`` and ``c = w/|w|``:
-    a smooth estimate of the smallest singular value. ``c`` is refreshed at every
-    accepted point from the computed ``w`` (the current near-null vector);
-    between two consecutive points both values are taken with the borders
-    of the left point, so ``det [[M, b], [c^T, 0]]`` keeps its sign across
-    the step. ``b`` is a fixed random unit vector: since ``w ∝ M^{-1} b``,
-    the solve picks the current near-null direction in one shot, whatever
-    happened at earlier branch points (bordering vectors refined only by
-    inverse iteration lock onto the first critical mode, which is what made
-    an earlier version miss later branch points). A sign change through a
-    pole (the borders turning orthogonal to the null vector within one step)
-    is rejected at localisation: there ``|s|`` grows instead of vanishing.
-    Cost: one bordered Krylov solve per accepted point (a sparse LU of the
-    ``(n+2)`` matrix when ``problem.sparse_jacobian`` exists) and one per
-    localisation iterate; no eigenvalues are needed.
+    ``s = det DM / det [[DM, b], [c^T, 0]]``: ``s`` changes sign with
+    ``det M`` (not at folds, where ``M`` is regular), and ``|s| = |DM w|/|w|``
+    when ``|b| = 1`` and ``c = w/|w|``. ``c`` is refreshed at every accepted
+    point from the computed ``w`` (the current near-null vector); ``b`` is
+    a fixed random unit vector, so ``w ~ M^{-1} b`` picks the near-null
+    direction at the current point in one shot (borders refined only by
+    inverse iteration lock onto the first critical mode and miss later
+    branch points). Each step is tested with the borders of its left end
+    and with those of its right end (one extra solve at the left point).
+    ``alpha`` scales the tangent row to the size of ``G_x`` so that the
+    parameter direction does not pose as the smallest mode. With fixed
+    borders ``s`` also has poles; a pole and a zero in one step cancel, so
+    ``n_borders`` independent sets (different ``b``) are used: a branch
+    point is a zero of all of them. Every sign change is localised and a
+    pole (``|s|`` grows instead of vanishing) is rejected. Cost per accepted
+    point: ``2 n_borders`` bordered solves (GMRES on ``apply_bordered``, or
+    back-substitutions with one sparse LU of ``DM`` when
+    ``problem.sparse_jacobian`` exists), plus one per localisation iterate;
+    no eigenvalues are needed.
 
     ``matrix_free="spectral"`` keeps the older test
     ``sign(tau_p) * (-1)^(number of real eigenvalues > 0)`` (for multipliers:
@@ -278,7 +281,9 @@ class BranchPointEvent(Event):
         GMRES tolerance of the bordered solve (default: ``settings.krylov``
         ``"bp_rtol"``, else ``"tangent_rtol"``, else 1e-9).
     seed:
-        Seed of the random bordering vector ``b``.
+        Seed of the random bordering vectors.
+    n_borders:
+        Number of independent border sets of the bordered test.
     """
 
     name = "branch_point"
@@ -291,30 +296,38 @@ class BranchPointEvent(Event):
         matrix_free: str = "bordered",
         rtol: float | None = None,
         seed: int = 20_001,
+        n_borders: int = 3,
     ) -> None:
         if matrix_free not in ("bordered", "spectral"):
             raise ValueError(
                 f"BranchPointEvent: matrix_free must be 'bordered' or 'spectral', "
                 f"got {matrix_free!r}"
             )
+        if int(n_borders) < 1:
+            raise ValueError(f"BranchPointEvent: n_borders must be >= 1, got {n_borders}")
         self.kind = kind
         self.name = name
         self.imag_tol = imag_tol
         self.matrix_free = matrix_free
         self.rtol = rtol
         self.seed = int(seed)
-        self._b: Array | None = None
-        self._w: Array | None = None  # last solution, warm start
-        self._version = 0
-        self._cs: dict[int, Array] = {}
+        self.n_borders = int(n_borders)
+        self._reset()
+        # Cost counters of the bordered test (matrix-free problems).
+        self.stats: dict[str, int] = {"solves": 0, "matvecs": 0, "direct": 0, "unconverged": 0}
+
+    def _reset(self) -> None:
+        k = getattr(self, "n_borders", 1)
+        self._bs: list[Array] = []
+        self._cs: list[dict[int, Array]] = [{} for _ in range(k)]
+        self._version = [0] * k
+        self._pending: list[tuple[int, float] | None] = [None] * k
+        self._ws: list[Array | None] = [None] * k  # warm starts
         self._alpha = 1.0
-        self._pending: tuple[int, float] | None = None
         self._prev_ctx: EventContext | None = None
-        self._loc_version = 0
+        self._loc: tuple[int, int] = (0, 0)
         self._found_in_step = False
         self._problem_id: int | None = None
-        # Cost counters of the bordered test (matrix-free problems).
-        self.stats: dict[str, int] = {"solves": 0, "matvecs": 0, "direct": 0}
 
     def _dense(self, ctx: EventContext) -> bool:
         return bool(ctx.problem.dense) and not np.isnan(ctx.log_det)
@@ -347,108 +360,112 @@ class BranchPointEvent(Event):
         kr = ctx.settings.krylov
         return float(kr.get("bp_rtol", kr.get("tangent_rtol", 1e-9)))
 
-    def _solve_bordered(self, ctx: EventContext, c: Array) -> tuple[Array, float]:
-        """``[w; s]`` solving ``[[M, b], [c^T, 0]] [w; s] = [0; 1]`` at ``ctx``."""
-        assert self._b is not None and ctx.apply_bordered is not None
-        b = self._b
-        m = b.size  # n + 1
-        rhs = np.zeros(m + 1)
-        rhs[-1] = 1.0
-        self.stats["solves"] += 1
-        pb = ctx.problem
-        spj = getattr(pb, "sparse_jacobian", None)
+    def _sparse_lu(self, ctx: EventContext):  # noqa: ANN202
+        """Sparse LU of the scaled ``M`` at ``ctx`` (cached), or ``None``."""
+        key = ("bp_lu", self.name)
+        if key in ctx.cache:
+            return ctx.cache[key]
+        spj = getattr(ctx.problem, "sparse_jacobian", None)
         Js = spj(ctx.x, ctx.p) if callable(spj) else None
+        lu = None
         if Js is not None and ctx.gp is not None:
             import scipy.sparse as sp
             from scipy.sparse.linalg import splu
 
-            # Exact: sparse LU of the (n+2) bordered matrix (one dense row and
-            # column each; COLAMD keeps the fill small).
-            n = m - 1
-            tau_row = self._alpha * ctx.weights * ctx.tangent
-            K = sp.bmat(
+            n = ctx.x.size
+            row = self._alpha * ctx.weights * ctx.tangent
+            M = sp.bmat(
                 [
-                    [Js, sp.csr_matrix(ctx.gp.reshape(n, 1)), sp.csr_matrix(b[:n].reshape(n, 1))],
-                    [
-                        sp.csr_matrix(tau_row[:n].reshape(1, n)),
-                        sp.csr_matrix(tau_row[n:].reshape(1, 1)),
-                        sp.csr_matrix(b[n:].reshape(1, 1)),
-                    ],
-                    [
-                        sp.csr_matrix(c[:n].reshape(1, n)),
-                        sp.csr_matrix(c[n:].reshape(1, 1)),
-                        None,
-                    ],
+                    [Js, sp.csr_matrix(ctx.gp.reshape(n, 1))],
+                    [sp.csr_matrix(row[:n].reshape(1, n)), sp.csr_matrix(row[n:].reshape(1, 1))],
                 ],
                 format="csc",
             )
-            y = splu(K).solve(rhs)
+            try:
+                lu = splu(M)
+            except RuntimeError:  # exactly singular (landed on the point)
+                lu = None
             self.stats["direct"] += 1
-        else:
-            from scipy.sparse.linalg import LinearOperator, gmres
+        ctx.cache[key] = lu
+        return lu
 
-            apply_m = ctx.apply_bordered
-            alpha = self._alpha
-            nmv = [0]
+    def _solve_bordered(self, ctx: EventContext, i: int, c: Array) -> tuple[Array, float]:
+        """``[w; s]`` solving ``[[M, b_i], [c^T, 0]] [w; s] = [0; 1]`` at ``ctx``."""
+        assert ctx.apply_bordered is not None
+        b = self._bs[i]
+        m = b.size  # n + 1
+        self.stats["solves"] += 1
+        lu = self._sparse_lu(ctx)
+        if lu is not None:
+            # Block elimination with an exact LU: w = -s M^{-1} b,
+            # s = -1 / (c . M^{-1} b). Near a branch point M^{-1} b is large
+            # but its direction (the null vector) and s are accurate.
+            y = lu.solve(b)
+            cy = float(c @ y)
+            if cy == 0.0 or not np.isfinite(cy):
+                return y, float("nan")
+            s = -1.0 / cy
+            return -s * y, s
+        from scipy.sparse.linalg import LinearOperator, gmres
 
-            def mv(v: Array) -> Array:
-                v = np.asarray(v, dtype=float).ravel()
-                nmv[0] += 1
-                top = apply_m(v[:m])
-                top[-1] *= alpha
-                return np.concatenate([top + v[m] * b, [float(c @ v[:m])]])
+        rhs = np.zeros(m + 1)
+        rhs[-1] = 1.0
+        apply_m = ctx.apply_bordered
+        alpha = self._alpha
+        nmv = [0]
 
-            P0 = ctx.precondition
-            P = None
-            if P0 is not None:
+        def mv(v: Array) -> Array:
+            v = np.asarray(v, dtype=float).ravel()
+            nmv[0] += 1
+            top = apply_m(v[:m])
+            top[-1] *= alpha
+            return np.concatenate([top + v[m] * b, [float(c @ v[:m])]])
 
-                def P(v: Array) -> Array:  # ~ (D M)^{-1} = M^{-1} D^{-1}
-                    v = np.array(v, dtype=float)
-                    v[-1] /= alpha
-                    return P0(v)
+        P0 = ctx.precondition
+        Mop = None
+        if P0 is not None:
 
-            Mop = None
-            if P is not None:
-                # Block elimination with P ~ M^{-1}: x = P f - y P b,
-                # c.x = g  =>  y = (c.P f - g) / (c.P b).
-                Pb = P(b)
-                cPb = float(c @ Pb)
-                if cPb != 0.0 and np.isfinite(cPb):
+            def P(v: Array) -> Array:  # ~ (D M)^{-1} = M^{-1} D^{-1}
+                v = np.array(v, dtype=float)
+                v[-1] /= alpha
+                return P0(v)
 
-                    def prec(v: Array) -> Array:
-                        v = np.asarray(v, dtype=float).ravel()
-                        Pf = P(v[:m])
-                        y = (float(c @ Pf) - v[m]) / cPb
-                        return np.concatenate([Pf - y * Pb, [y]])
+            # Block elimination with P ~ M^{-1}: x = P f - y P b,
+            # c.x = g  =>  y = (c.P f - g) / (c.P b).
+            Pb = P(b)
+            cPb = float(c @ Pb)
+            if cPb != 0.0 and np.isfinite(cPb):
 
-                    Mop = LinearOperator((m + 1, m + 1), matvec=prec)
-            x0 = None
-            if self._w is not None and self._w.size == m + 1:
-                x0 = self._w
-            y, _ = gmres(
-                LinearOperator((m + 1, m + 1), matvec=mv),
-                rhs,
-                x0=x0,
-                rtol=self._rtol(ctx),
-                atol=0.0,
-                restart=min(m + 1, 60),
-                maxiter=30,
-                M=Mop,
-            )
-            self.stats["matvecs"] += nmv[0]
+                def prec(v: Array) -> Array:
+                    v = np.asarray(v, dtype=float).ravel()
+                    Pf = P(v[:m])
+                    y = (float(c @ Pf) - v[m]) / cPb
+                    return np.concatenate([Pf - y * Pb, [y]])
+
+                Mop = LinearOperator((m + 1, m + 1), matvec=prec)
+        x0 = self._ws[i]
+        y, info = gmres(
+            LinearOperator((m + 1, m + 1), matvec=mv),
+            rhs,
+            x0=x0 if x0 is not None and x0.size == m + 1 else None,
+            rtol=self._rtol(ctx),
+            atol=0.0,
+            restart=min(m + 1, 60),
+            maxiter=30,
+            M=Mop,
+        )
+        self.stats["matvecs"] += nmv[0]
+        if info != 0:
+            self.stats["unconverged"] += 1  # s kept: its sign is usually right
         if not np.all(np.isfinite(y)):
             return y[:m], float("nan")
-        self._w = y.copy()
+        self._ws[i] = y.copy()
         return y[:m], float(y[m])
 
     def _borders_init(self, ctx: EventContext) -> None:
+        self._reset()
         m = ctx.X.size
         rng = np.random.default_rng(self.seed)
-        b = rng.standard_normal(m)
-        self._b = b / np.linalg.norm(b)
-        c = rng.standard_normal(m)
-        c = c / np.linalg.norm(c)
-        self._w = None
         # Scale the tangent row of M to the size of G_x (a positive row
         # factor leaves the sign of det M alone): with the weighted row alone
         # (size ~1) the parameter direction is often the smallest singular
@@ -460,62 +477,72 @@ class BranchPointEvent(Event):
         scale = float(np.linalg.norm(gx) / np.linalg.norm(r))
         self._alpha = scale / row if np.isfinite(scale) and scale > 0 and row > 0 else 1.0
         self.stats["matvecs"] += 1
-        # One refinement: c from the near-null vector of the first point.
-        w, _ = self._solve_bordered(ctx, c)
-        nw = float(np.linalg.norm(w))
-        self._cs = {1: w / nw if np.isfinite(nw) and nw > 0 else c}
-        self._version = 1
-        self._pending = None
-        self._prev_ctx = None
+        for i in range(self.n_borders):
+            b = rng.standard_normal(m)
+            self._bs.append(b / np.linalg.norm(b))
+            c = rng.standard_normal(m)
+            c = c / np.linalg.norm(c)
+            # One refinement: c from the near-null vector of the first point.
+            w, _ = self._solve_bordered(ctx, i, c)
+            nw = float(np.linalg.norm(w))
+            self._cs[i] = {1: w / nw if np.isfinite(nw) and nw > 0 else c}
+            self._version[i] = 1
         self._problem_id = id(ctx.problem)
 
-    def _value(self, ctx: EventContext, version: int) -> tuple[Array, float]:
-        """``(w, s)`` at ``ctx`` with the borders of ``version`` (cached)."""
-        key = ("bp_bordered", self.name, version)
+    def _value(self, ctx: EventContext, i: int, version: int) -> tuple[Array, float]:
+        """``(w, s)`` at ``ctx`` with border set ``i``, ``c`` of ``version`` (cached)."""
+        key = ("bp_bordered", self.name, i, version)
         hit = ctx.cache.get(key)
         if hit is None:
-            hit = self._solve_bordered(ctx, self._cs[version])
+            hit = self._solve_bordered(ctx, i, self._cs[i][version])
             ctx.cache[key] = hit
         return hit
 
-    def _new_borders(self, ctx: EventContext, w: Array, s: float) -> int | None:
-        """Store ``c = w/|w|`` as a new border version; the same solve then
+    def _new_borders(self, ctx: EventContext, i: int, w: Array, s: float) -> int | None:
+        """Store ``c = w/|w|`` as a new version of set ``i``; the same solve
         gives ``(w/|w|, s/|w|)`` at ``ctx`` (``c_old . w = 1 > 0``: same sign)."""
         nw = float(np.linalg.norm(w))
         if not (np.isfinite(nw) and nw > 0 and np.isfinite(s)):
             return None
-        ver = max(self._cs) + 1
-        self._cs[ver] = w / nw
-        ctx.cache[("bp_bordered", self.name, ver)] = (w / nw, s / nw)
+        ver = max(self._cs[i]) + 1
+        self._cs[i][ver] = w / nw
+        ctx.cache[("bp_bordered", self.name, i, ver)] = (w / nw, s / nw)
         return ver
 
     def _bordered_values(self, ctx: EventContext) -> Array:
-        """``[s(X1; c_left), s(X1; c_right)]`` at a new point ``X1``.
+        """``[s_i(X1; c_left), s_i(X1; c_right)]`` for each border set ``i``.
 
         ``c_left`` are the borders of the last accepted point ``X0``,
-        ``c_right`` the near-null vector at ``X1``; ``s(X0; c_right)`` is
-        computed too (one more solve) so that the step is tested with both
-        border sets: a zero of ``s`` is seen by both, a pole (the borders
-        orthogonal to the null vector somewhere in the step) only by one,
-        and the near-null vector at ``X1`` is the mode that just crossed.
+        ``c_right`` the near-null vector at ``X1``; ``s_i(X0; c_right)`` is
+        computed too (one more solve) so that the step is tested with both:
+        a zero of ``s`` is common to all, a pole (borders orthogonal to the
+        null vector somewhere in the step) belongs to one border set.
         """
+        k = self.n_borders
         if (
-            self._b is None
-            or self._b.size != ctx.X.size
+            not self._bs
+            or self._bs[0].size != ctx.X.size
             or self._problem_id != id(ctx.problem)
             or self._prev_ctx is None
         ):
             self._borders_init(ctx)
-            s = self._value(ctx, 1)[1]
-            return np.array([s, s])
+            out = np.empty(2 * k)
+            for i in range(k):
+                out[2 * i] = out[2 * i + 1] = self._value(ctx, i, 1)[1]
+            return out
         self._found_in_step = False
-        w, s = self._value(ctx, self._version)
-        ver = self._new_borders(ctx, w, s)
-        if ver is None:
-            return np.array([s, s])
-        s_left = self._value(self._prev_ctx, ver)[1]
-        self._pending = (ver, float(s_left))
-        return np.array([s, self._value(ctx, ver)[1]])
+        out = np.empty(2 * k)
+        for i in range(k):
+            w, s = self._value(ctx, i, self._version[i])
+            out[2 * i] = out[2 * i + 1] = s
+            ver = self._new_borders(ctx, i, w, s)
+            if ver is None:
+                self._pending[i] = None
+                continue
+            s_left = self._value(self._prev_ctx, i, ver)[1]
+            self._pending[i] = (ver, float(s_left))
+            out[2 * i + 1] = self._value(ctx, i, ver)[1]
+        return out
 
     # --- Event API -------------------------------------------------------------
     def values(self, ctx: EventContext) -> Array:
@@ -527,29 +554,35 @@ class BranchPointEvent(Event):
 
     def crossed(self, v0: Array, v1: Array) -> list[int]:
         v0, v1 = np.atleast_1d(v0), np.atleast_1d(v1)
-        if v0.size != 2 or v1.size != 2 or self._pending is None:
+        k = self.n_borders
+        if v0.size != 2 * k or v1.size != 2 * k or v0.size < 2:
             return super().crossed(v0[:1], v1[:1])
-        # component 1: both ends with the right borders; 0: with the left ones.
-        # Both are localised when both flip (one may be a pole); the second
-        # is dropped if the first gave a branch point.
-        out = []
-        if np.sign(self._pending[1]) * np.sign(v1[1]) < 0:
-            out.append(1)
-        if np.sign(v0[0]) * np.sign(v1[0]) < 0:
-            out.append(0)
-        return out
+        # For each set: component 2i+1 compares both ends with the right
+        # borders, 2i with the left ones. All flips are localised, right
+        # borders first; the first one that validates is the branch point.
+        right, left = [], []
+        for i in range(k):
+            pend = self._pending[i]
+            if pend is not None and np.sign(pend[1]) * np.sign(v1[2 * i + 1]) < 0:
+                right.append(2 * i + 1)
+            if np.sign(v0[2 * i]) * np.sign(v1[2 * i]) < 0:
+                left.append(2 * i)
+        return right + left
 
     def accepted(self, ctx: EventContext, values: Array) -> Array:
         if not self._bordered(ctx):
             return values
-        if self._pending is not None:
-            self._version = self._pending[0]
-            self._pending = None
-            # keep only the borders still needed
-            self._cs = {self._version: self._cs[self._version]}
+        out = np.array(values, dtype=float)
+        for i in range(self.n_borders):
+            pend = self._pending[i]
+            if pend is not None:
+                self._version[i] = pend[0]
+                self._pending[i] = None
+                self._cs[i] = {pend[0]: self._cs[i][pend[0]]}
+            if out.size == 2 * self.n_borders:
+                out[2 * i] = out[2 * i + 1]
         self._prev_ctx = ctx
-        s = float(np.atleast_1d(values)[-1])
-        return np.array([s, s])
+        return out
 
     def localiser(self, ctx0, ctx1, j):  # noqa: ANN001, ANN201
         if self._dense(ctx0):
@@ -558,13 +591,27 @@ class BranchPointEvent(Event):
             return lambda ctx: (
                 0.0 if ctx.log_det == -np.inf else float(ctx.det_sign * np.exp(ctx.log_det - ref))
             )
-        if self._bordered(ctx0):
+        if self._bordered(ctx0) and self._bs:
+            if self._found_in_step:
+                # another border set already gave the branch point of this
+                # step: a NaN makes the driver skip the localisation
+                return lambda ctx: float("nan")
             # The same borders at both ends and every trial point.
-            ver = self._version
-            if j == 1 and self._pending is not None:
-                ver = self._pending[0]
-            self._loc_version = ver
-            return lambda ctx: float(self._value(ctx, ver)[1])
+            i = j // 2
+            ver = self._version[i]
+            pend = self._pending[i]
+            if j % 2 == 1 and pend is not None:
+                ver = pend[0]
+            self._loc = (i, ver)
+            cap = 2.0 * max(abs(self._value(ctx0, i, ver)[1]), abs(self._value(ctx1, i, ver)[1]))
+
+            def g(ctx: EventContext) -> float:
+                s = float(self._value(ctx, i, ver)[1])
+                # |s| above both ends: heading for a pole, not a zero; a NaN
+                # stops the localisation (the point is then rejected).
+                return s if abs(s) <= cap else float("nan")
+
+            return g
         left = self._spectral(ctx0)[0]
 
         def g(ctx: EventContext) -> float:
@@ -578,15 +625,15 @@ class BranchPointEvent(Event):
         if self._dense(ctx):
             data["test_value"] = float(self.values(ctx)[0])
             return self.kind, data
-        if not self._bordered(ctx):
+        if not self._bordered(ctx) or not self._bs:
             data["test_value"] = self._spectral(ctx)[1]
             return self.kind, data
         if self._found_in_step:
-            return None  # the other border set already gave this branch point
-        ver = self._loc_version
-        w, s = self._value(ctx, ver)
-        s0 = abs(self._value(ctx0, ver)[1])
-        s1 = abs(self._value(ctx1, ver)[1])
+            return None  # another border set already gave this branch point
+        i, ver = self._loc
+        w, s = self._value(ctx, i, ver)
+        s0 = abs(self._value(ctx0, i, ver)[1])
+        s1 = abs(self._value(ctx1, i, ver)[1])
         if not np.isfinite(s) or abs(s) > 0.1 * min(s0, s1):
             # |s| grew instead of vanishing: the sign change was a pole of s
             # (borders orthogonal to the null vector), not a branch point.
@@ -596,6 +643,7 @@ class BranchPointEvent(Event):
             {
                 "test_value": float(s),
                 "test": "bordered",
+                "border_set": int(i),
                 # |M w| / |w| = |s| |b| / |w|: smallest-singular-value estimate
                 "singular_value_estimate": abs(float(s)) / nw if nw > 0 else float("nan"),
                 "null_vector": (w / nw)[:-1].copy() if nw > 0 else None,

@@ -32,7 +32,7 @@ from scipy.optimize import brentq
 from contfil.engine.branch import CYCLE_BRANCH_POINT
 from contfil.engine.events import Event, EventContext
 from contfil.engine.problem_base import Stability
-from contfil.errors import ContfilError
+from contfil.errors import ContfilError, ConvergenceError
 from contfil.models.protocol import InvariantSubspace, Symmetries
 
 from . import stepper as _stepper
@@ -182,44 +182,60 @@ def plane_fraction(v: Array) -> float:
     return float(inplane / np.linalg.norm(v))
 
 
-def solve_whirling(model: FilamentModel, dh: dict[str, Any], eps: float,
-                   polish: int = 3) -> tuple[Any, Array, float, dict[str, Any]]:
+def solve_whirling(
+    model: FilamentModel, dh: dict[str, Any], eps: float, tol: float = 1e-10, max_iter: int = 20
+) -> tuple[Any, Array, float, dict[str, Any]]:
     """First whirling rotating wave at amplitude ``<d, u> = eps`` from the double Hopf.
 
-    Solves ``f(u) - omega L u = 0``, ``<L u_ref, u - u_ref> = 0`` and the
-    amplitude condition for ``(u, omega, p)`` with the engine's
-    :func:`~contfil.engine.cycle_switching.solve_with_amplitude` (hookstep
-    Newton-Krylov), then ``polish`` dense Newton steps on the same bordered
-    system (model Jacobian). Returns ``(problem, x = (u, omega), p, info)``;
-    ``info["residual"]`` is ``max|G(x, p)|`` of the co-moving system.
+    Solves ``f(u) - omega L u = 0``, ``<L u_ref, u - u_ref> = 0`` (the
+    engine's :class:`~contfil.engine.rotating_wave.RotatingWaveProblem`) and
+    the amplitude condition for ``(u, omega, p)``, so the side of the branch
+    comes out of the solve. The system is small (``3(N-1) + 2``): dense
+    Newton on the bordered Jacobian ``[[G_x, G_p], [d, 0]]`` (model Jacobian),
+    with step halving when the residual grows. Returns ``(problem, x = (u,
+    omega), p, info)``; ``info["residual"]`` is ``max|G(x, p)|`` of the
+    co-moving system.
     """
-    from contfil.engine.cycle_switching import solve_with_amplitude
     from contfil.engine.rotating_wave import RotatingWaveProblem
 
     ws = whirling_seed(model, dh)
     pb = RotatingWaveProblem(model, model.param_names[0], np.array([dh["p"]]))
     u0 = eps * ws["d"]
     pb.set_reference(u0)
-    z0 = np.concatenate([u0, [ws["omega_rw"]]])
-    x_star = np.concatenate([np.zeros_like(u0), [ws["omega_rw"]]])
-    x, p, info = solve_with_amplitude(pb, z0, dh["p"], x_star,
-                                      np.concatenate([ws["d"], [0.0]]), eps, tol=1e-9)
-    # dense Newton on (G(x, p), <d, u> - eps) = 0: keeps the amplitude condition
+    x, p = np.concatenate([u0, [ws["omega_rw"]]]), float(dh["p"])
     dd = np.concatenate([ws["d"], [0.0]])
-    for _ in range(polish):
-        r = np.concatenate([pb.residual(x, p), [dd @ x - eps]])
-        if np.max(np.abs(r)) < 1e-13:
-            break
+
+    def F(x: Array, p: float) -> Array:
+        return np.concatenate([pb.residual(x, p), [dd @ x - eps]])
+
+    r = F(x, p)
+    hist = [float(np.max(np.abs(r)))]
+    it = 0
+    while hist[-1] > 0.1 * tol and it < max_iter:
+        it += 1
         A = np.zeros((pb.n + 1, pb.n + 1))
         A[:-1, :-1] = pb.jacobian(x, p)
         A[:-1, -1] = pb.dp(x, p)
         A[-1, :-1] = dd
         dz = np.linalg.solve(A, -r)
-        x, p = x + dz[:-1], p + float(dz[-1])
-    out = dict(info)
-    out["residual"] = float(np.max(np.abs(pb.residual(x, p))))
-    out["seed"] = ws
-    return pb, x, p, out
+        lam = 1.0
+        while True:
+            xn, pn = x + lam * dz[:-1], p + lam * float(dz[-1])
+            rn = F(xn, pn)
+            if np.max(np.abs(rn)) < hist[-1] or lam < 1e-3:
+                break
+            lam *= 0.5
+        if np.max(np.abs(rn)) >= hist[-1]:
+            break  # round-off floor reached
+        x, p, r = xn, pn, rn
+        hist.append(float(np.max(np.abs(r))))
+    res = float(np.max(np.abs(pb.residual(x, p))))
+    if res > tol:
+        raise ConvergenceError(
+            f"solve_whirling: residual {res:.3e} > {tol:.1e} after {it} Newton iterations "
+            f"(eps = {eps}, history {hist})"
+        )
+    return pb, x, p, {"iterations": it, "history": hist, "residual": res, "seed": ws}
 
 
 def solve_beating(flow_model: FixedStepFlow, dh: dict[str, Any], eps: float,
