@@ -344,7 +344,8 @@ def run_model(name: str, parts: list[str], quick: bool, steps: int,
         sps = [] if b is None else [s for s in b["special"]
                                     if s.get("event") == "out_of_plane_pitchfork"]
         if not sps:
-            raise SystemExit("no out-of-plane pitchfork stored: run --part beating first")
+            print(f"[{name}] dt study skipped: no out-of-plane pitchfork stored")
+            return
         runs = dt_study(model, sps[0], [200, 800])  # 400: the continuation itself
         _save(name, "dt", quick, {"pitchfork": sps[0], "runs": runs})
 
@@ -384,7 +385,7 @@ def table() -> None:
                   f"{sh['trivial_shooting'][0][0]:.7f} | {sh['newton_residual']:.1e} | "
                   f"{sh['flow_evals']} | {sh['wall']:.0f} s |")
     print()
-    print("| model | first beating (ε=0.05) p, T | range continued | leading μ (first → last) |"
+    print("| model | first beating (ε=0.05) p, T | range | leading abs(μ) (first → last) |"
           " pitchfork p | T, 1/T at pitchfork | points | flows planar / 3D | wall | stop |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for name in MODELS:
@@ -397,7 +398,8 @@ def table() -> None:
         pft = f"{pf[0]['T']:.6g}, {1 / pf[0]['T']:.5g}" if pf else ""
         print(f"| {name} | {b['first']['p']:.6g}, {b['first']['T']:.6g} | "
               f"{pts[0]['p']:.5g} – {pts[-1]['p']:.5g} | "
-              f"{pts[0]['multipliers'][0][0]:.5g} → {pts[-1]['multipliers'][0][0]:.4g} | {pfs} | "
+              f"{abs(complex(*pts[0]['multipliers'][0])):.5g} → "
+              f"{abs(complex(*pts[-1]['multipliers'][0])):.4g} | {pfs} | "
               f"{pft} | {len(pts)} | {b['flows_planar']} / {b['flows_3d']} | {b['wall']:.0f} s | "
               f"{b['stop'] or '2 points past the pitchfork'} |")
     print()
@@ -418,6 +420,8 @@ def table() -> None:
             en = float(np.interp(q["p"], wpp[o], np.array([r["E"] for r in wp])[o]))
             k = int(np.argmin(np.abs(wpp - q["p"])))
             ws = f"{fr:.5g}, {en:.4g}, {'yes' if wp[k]['n_unstable'] == 0 else 'no'}"
+            if not wpp.min() <= q["p"] <= wpp.max():
+                ws = "(outside the computed whirling range)"
             bs = ""
             if bp:
                 bs = (f"{q['freq']:.5g}, {q['E_mean']:.4g}, {q['multipliers'][0][0]:.4g}"

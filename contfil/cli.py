@@ -24,6 +24,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+import contfil._blas_threads  # noqa: F401  (before numpy is imported)
 from contfil.errors import ContfilError, SpecError
 
 
