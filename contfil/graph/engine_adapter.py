@@ -31,6 +31,9 @@ from contfil.io.store import TaskRecords
 # ------------------------------------------------------------------- models
 
 
+#: Samples per period for the period-mean observables of cycle branches.
+PERIOD_MEANS = 8
+
 _NOT_MODELS = {"CatalogEntry", "bratu_fold_exact", "bratu_solution"}
 
 
@@ -305,10 +308,21 @@ def default_switchers(standing_subspace: str | None = "auto",
         f = getattr(problem, "params_at", None)
         return None if f is None else np.asarray(f(p), dtype=float)
 
+    def cycle_kw(model: Any) -> dict[str, Any]:
+        # Time steps per period: a model may advertise its own resolution
+        # (the filament: the paper's T/400); period means give diagrams the
+        # paper's ordinate (mean over a period) at PERIOD_MEANS extra flows
+        # of length T/PERIOD_MEANS per point.
+        return {
+            "steps": int(getattr(model, "flow_steps_min", 100)),
+            "period_means": PERIOD_MEANS,
+        }
+
     if hasattr(cs, "cycles_from_hopf"):
         def hopf(sp: Any, branch: Any, problem: Any) -> list[Seed]:
             st = cs.cycles_from_hopf(problem.model, problem.param, sp,
-                                     params=params_of(problem, sp.point.p))
+                                     params=params_of(problem, sp.point.p),
+                                     **cycle_kw(problem.model))
             return [one_way(st, "cycle")]
 
         reg.register("hopf", _wrap(hopf))
@@ -319,7 +333,8 @@ def default_switchers(standing_subspace: str | None = "auto",
             if not getattr(model.symmetries, "continuous", None):
                 # A generic double Hopf: two independent Hopf cycles.
                 st = cs.cycles_from_hopf(model, problem.param, sp,
-                                         params=params_of(problem, sp.point.p))
+                                         params=params_of(problem, sp.point.p),
+                                         **cycle_kw(model))
                 return [one_way(st, "cycle")]
             out = []
             errors = []
@@ -342,7 +357,7 @@ def default_switchers(standing_subspace: str | None = "auto",
             try:
                 out.append(one_way(cs.standing_wave_from_double_hopf(
                     model, problem.param, sp, params=params_of(problem, sp.point.p),
-                    subspace=sub), "standing wave"))
+                    subspace=sub, **cycle_kw(model)), "standing wave"))
             except (ContfilError, ValueError, ArithmeticError) as exc:
                 errors.append(f"standing wave: {type(exc).__name__}: {exc}")
             if errors:
