@@ -56,7 +56,7 @@ from contfil.engine.rotating_wave import RotatingWaveProblem
 from contfil.engine.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
 from contfil.engine.switching import hopf_data, o2_hopf_modes
 from contfil.errors import ContfilError, ConvergenceError
-from contfil.models.protocol import Model
+from contfil.protocol import Model
 
 Array = NDArray[np.float64]
 

@@ -19,7 +19,7 @@ from contfil.engine.eigen import (
 )
 from contfil.engine.problem_base import Problem, Stability, fd_step
 from contfil.errors import ConvergenceError, NonFiniteError, SpecError
-from contfil.models.protocol import Model, param_index
+from contfil.protocol import Model, param_index
 
 Array = NDArray[np.float64]
 

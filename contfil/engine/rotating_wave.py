@@ -36,7 +36,7 @@ from contfil.engine.floquet import floquet_multipliers
 from contfil.engine.hookstep import newton_hookstep
 from contfil.engine.problem_base import Problem, Stability, fd_step
 from contfil.errors import SpecError
-from contfil.models.protocol import Model, param_index
+from contfil.protocol import Model, param_index
 
 Array = NDArray[np.float64]
 

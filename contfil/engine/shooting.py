@@ -40,7 +40,7 @@ from contfil.engine.default_flow import FlowOps
 from contfil.engine.floquet import floquet_multipliers
 from contfil.engine.problem_base import Problem, Stability
 from contfil.errors import SpecError
-from contfil.models.protocol import Model, param_index
+from contfil.protocol import Model, param_index
 
 Array = NDArray[np.float64]
 
