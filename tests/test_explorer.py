@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -13,6 +15,13 @@ from contfil.graph.explorer import Explorer, ExplorerSettings, Progress
 from contfil.graph.seeds import Seed, SwitcherRegistry, as_seed
 from contfil.models.catalog import pitchfork, z2_pitchfork
 from contfil.models.protocol import Symmetries
+
+
+def _set(text: str, key: str, value: str) -> str:
+    """Replace the first ``key = ...`` line of a spec, failing if there is none."""
+    out, n = re.subn(rf"(?m)^{key} = .*$", f"{key} = {value}", text, count=1)
+    assert n == 1, f"spec has no {key!r} line"
+    return out
 
 
 def _explore(entry, symmetries, both: bool, depth: int = 2, calls: list | None = None):
@@ -139,7 +148,8 @@ def test_filament_upright_double_hopf_whirling(tmp_path) -> None:
     from contfil.io.spec import loads_spec
 
     text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
-    text = (text.replace("N = 20", "N = 8").replace("max_points = 100", "max_points = 16")
+    text = _set(_set(text, "max_points", "16"), "range", "[0.0, 70.0]")
+    text = (text.replace("N = 20", "N = 8")
             .replace("ds_max = 2.0", "ds_max = 4.0"))
     # Beating (shooting) has its own, slower test.
     text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
@@ -314,8 +324,8 @@ def test_whirling_branch_agrees_with_time_integration(tmp_path) -> None:
 
     f = 45.0
     text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
-    text = (text.replace("N = 20", "N = 8").replace("range = [0.0, 70.0]", f"range = [0.0, {f}]")
-            .replace("ds_max = 2.0", "ds_max = 4.0"))
+    text = _set(text, "range", f"[0.0, {f}]")
+    text = text.replace("N = 20", "N = 8").replace("ds_max = 2.0", "ds_max = 4.0")
     text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
                         'kinds = ["double_hopf"]\nbranches = ["equilibrium", "rotating_wave"]')
     spec = loads_spec(text)
@@ -356,9 +366,9 @@ def test_filament_beating_born_unstable_at_double_hopf(tmp_path) -> None:
     from contfil.io.spec import loads_spec
 
     text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
-    text = (text.replace("N = 20", "N = 6").replace("max_points = 100", "max_points = 5")
+    text = _set(_set(text, "max_points", "5"), "range", "[30.0, 45.0]")
+    text = (text.replace("N = 20", "N = 6")
             .replace("ds_max = 2.0", "ds_max = 4.0").replace("ds = 0.5", "ds = 2.0")
-            .replace("range = [0.0, 70.0]", "range = [30.0, 45.0]")
             .replace("[continuation]", "[continuation]\nstart = 30.0"))
     text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
                         'kinds = ["double_hopf"]\nbranches = ["equilibrium", "periodic_orbit"]')
