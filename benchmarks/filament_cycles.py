@@ -326,7 +326,7 @@ def run_model(name: str, parts: list[str], quick: bool, steps: int,
         w = load(name, "whirling", quick)
         if w is None:
             raise SystemExit("run --part whirling first")
-        tor = [s["p"] for s in w["special"] if s["kind"] in ("hopf", "double_hopf")]
+        tor = [s["p"] for s in w["special"] if s["kind"] in ("hopf", "double_hopf", "torus")]
         p_target = 0.5 * (dh["p"] + tor[0]) if tor else w["points"][len(w["points"]) // 2]["p"]
         sh = whirling_shooting(model, w, steps, p_target)
         print(f"[{name}] shooting check: {sh}")
@@ -360,7 +360,7 @@ def table() -> None:
         if w is None:
             continue
         dh = w["double_hopf"]
-        tor = [s for s in w["special"] if s["kind"] == "hopf"]
+        tor = [s for s in w["special"] if s["kind"] in ("hopf", "torus")]
         if not tor:
             print(f"| {name} | {dh['p']:.5g} | not found up to {w['points'][-1]['p']:.4g} |"
                   " | | | | | | |")

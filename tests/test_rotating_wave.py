@@ -103,3 +103,38 @@ def test_rotating_wave_errors_name_the_problem():
     pb = RotatingWaveProblem(o2_hopf(), "mu")
     with pytest.raises(SpecError, match="invariant under the symmetry"):
         pb.set_reference(np.zeros(4))
+
+
+def test_hopf_of_comoving_field_is_reported_as_torus() -> None:
+    """z1' = (mu + i) z1 - |z1|^2 z1, z2' = (mu - 1 + 3i) z2, rotation acting
+    as e^{i theta} on both: the rotating wave z1 = sqrt(mu) e^{it}, z2 = 0
+    has co-moving eigenvalues mu - 1 +- 2i on the z2 block, so it loses
+    stability at mu = 1 exactly through a torus bifurcation (second
+    frequency 2 in the co-moving frame), not a Hopf point."""
+    from contfil.engine.branch import HOPF, TORUS
+    from contfil.engine.continuation import ContinuationSettings, continue_branch
+    from contfil.protocol import ContinuousSymmetry, FunctionModel, Symmetries
+
+    def f(u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        z1, z2 = complex(u[0], u[1]), complex(u[2], u[3])
+        d1 = (p[0] + 1j) * z1 - abs(z1) ** 2 * z1
+        d2 = (p[0] - 1.0 + 3j) * z2
+        return np.array([d1.real, d1.imag, d2.real, d2.imag])
+
+    J = np.array([[0.0, -1.0], [1.0, 0.0]])
+    L = np.block([[J, np.zeros((2, 2))], [np.zeros((2, 2)), J]])
+    m = FunctionModel(f, 4, {"mu": 0.25},
+                      symmetries=Symmetries(continuous=[ContinuousSymmetry("rot", L)]))
+    pb = RotatingWaveProblem(m, "mu")
+    br = continue_branch(pb, np.array([0.5, 0.0, 0.0, 0.0, 1.0]), 0.25,
+                         ContinuationSettings(ds=0.05, ds_max=0.1, max_points=60, p_max=1.5))
+    kinds = [sp.kind for sp in br.special_points]
+    assert HOPF not in kinds
+    tor = [sp for sp in br.special_points if sp.kind == TORUS]
+    assert len(tor) == 1
+    assert abs(tor[0].point.p - 1.0) < 1e-8
+    assert abs(abs(tor[0].data["second_frequency_comoving"]) - 2.0) < 1e-6
+    assert tor[0].data["switchable"] is False
+    # stable before, one unstable pair after
+    assert all(pt.n_unstable == 0 for pt in br.points if pt.p < 1.0 - 1e-6)
+    assert all(pt.n_unstable == 2 for pt in br.points if pt.p > 1.0 + 1e-6)

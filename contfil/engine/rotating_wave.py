@@ -194,9 +194,9 @@ class RotatingWaveProblem(Problem):
         return obs
 
     def default_events(self) -> list:
-        from contfil.engine.events import BranchPointEvent, FoldEvent, HopfEvent
+        from contfil.engine.events import BranchPointEvent, FoldEvent
 
-        return [FoldEvent(), BranchPointEvent(), HopfEvent()]
+        return [FoldEvent(), BranchPointEvent(), _torus_event()]
 
     def stability(self, x: Array, p: float, vectors: bool = True) -> Stability:
         """Eigenvalues of ``f_u - ω L``; the symmetry mode flagged by its eigenvector."""
@@ -294,3 +294,32 @@ def rotating_wave_by_shooting(
     )
     return {"u": uu, "theta": th, "omega": om, "period": Tp, "stability": st,
             "newton": info, "flow_evals": ops.flow_evals + ops.tangent_evals}
+
+
+def _torus_event():  # noqa: ANN202
+    """A Hopf event of the co-moving field, reported as a torus bifurcation.
+
+    A complex pair ``±iω₂`` of ``f_u − ωL`` crossing the imaginary axis puts
+    the lab-frame Floquet multipliers ``exp(±iω₂T)`` (``T = 2π/|ω|``) on the
+    unit circle: a Neimark–Sacker (torus) bifurcation of the rotating wave,
+    not a Hopf point of an equilibrium; no branch of cycles is born there.
+    """
+    from contfil.engine.branch import TORUS
+    from contfil.engine.events import HopfEvent
+
+    class TorusOfRotatingWave(HopfEvent):
+        name = "torus"
+
+        def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+            out = super().special_point_data(ctx, j, ctx0, ctx1)
+            if out is None:
+                return None
+            _, data = out
+            omega_rw = float(ctx.x[-1])
+            period = 2 * np.pi / abs(omega_rw) if omega_rw != 0.0 else float("inf")
+            data["second_frequency_comoving"] = data["omega"]
+            data["rotation_number"] = float((data["omega"] * period / (2 * np.pi)) % 1.0)
+            data["switchable"] = False
+            return TORUS, data
+
+    return TorusOfRotatingWave()
