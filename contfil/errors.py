@@ -17,3 +17,10 @@ class ConvergenceError(ContfilError, RuntimeError):
 
 class NonFiniteError(ContfilError, FloatingPointError):
     """A state, residual or step produced NaN or infinity."""
+
+
+class DomainError(ContfilError, ValueError):
+    """An unknown left its admissible domain (e.g. a non-positive period).
+
+    Trust-region solvers treat it like a failed trial step and shrink.
+    """

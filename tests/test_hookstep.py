@@ -82,3 +82,29 @@ def test_corrector_adapter_convention():
     np.testing.assert_allclose(X, [np.sqrt(2), np.sqrt(2)], rtol=1e-12)
     _, bad = corr(lambda X: X**2 + 1.0, None, np.array([0.3, 0.2]), 1e-12, 5)
     assert not bad.converged  # reported, not raised: the driver cuts its step
+
+
+def test_trial_step_outside_domain_shrinks_instead_of_failing() -> None:
+    """A residual defined only for x > 0 (like a shooting period): a long
+    first step that leaves the domain is treated as a failed trial step."""
+    from contfil.errors import DomainError
+
+    def F(x: np.ndarray) -> np.ndarray:
+        if x[0] <= 0.0:
+            raise DomainError(f"x = {x[0]} <= 0")
+        return np.array([np.log(x[0]) - 1.0])
+
+    x, info = newton_hookstep(F, np.array([20.0]), tol=1e-12)
+    assert abs(x[0] - np.e) < 1e-10
+
+
+def test_shooting_refuses_non_positive_period() -> None:
+    from contfil.engine.shooting import PeriodicOrbitProblem
+    from contfil.errors import DomainError
+    from contfil.models.catalog.cycles_hopf import stuart_landau
+
+    m = stuart_landau()
+    pb = PeriodicOrbitProblem(m, m.param_names[0])
+    x = np.concatenate([np.ones(m.dim), [-0.5]])
+    with pytest.raises(DomainError, match="T > 0"):
+        pb.residual(x, float(m.default_params()[0]))

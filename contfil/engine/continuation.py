@@ -40,7 +40,7 @@ from contfil.engine.branch import ENDPOINT, Branch, Point, SpecialPoint
 from contfil.engine.events import Event, EventContext, default_events
 from contfil.engine.newton import NewtonInfo, newton_dense, newton_krylov
 from contfil.engine.problem_base import Problem
-from contfil.errors import ContfilError, ConvergenceError, NonFiniteError
+from contfil.errors import ContfilError, ConvergenceError, DomainError, NonFiniteError
 
 Array = NDArray[np.float64]
 Corrector = Callable[
@@ -613,8 +613,8 @@ class Continuation:
                 X, info = self._solve(Xp, c0, float(c0 @ X0) + ds)
                 ok = info.converged and np.all(np.isfinite(X))
                 reason = info.reason
-            except NonFiniteError as exc:
-                ok, info, reason = False, None, f"non-finite ({exc})"
+            except (NonFiniteError, DomainError) as exc:
+                ok, info, reason = False, None, f"{type(exc).__name__} ({exc})"
             ctx = None
             if ok:
                 try:

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.errors import ConvergenceError, NonFiniteError
+from contfil.errors import ConvergenceError, DomainError, NonFiniteError
 
 Array = NDArray[np.float64]
 
@@ -231,7 +231,11 @@ def newton_hookstep(
             s = V[:, :k] @ y
             snorm = float(np.linalg.norm(s))
             x_new = x + s
-            r_new = Fc(x_new)
+            try:
+                r_new = Fc(x_new)
+            except (NonFiniteError, DomainError):
+                # the trial point left the domain (e.g. T <= 0): too long a step
+                r_new = np.full_like(r, np.inf)
             rn_new = float(np.linalg.norm(r_new)) if np.all(np.isfinite(r_new)) else np.inf
             if rn_new >= rn:
                 # residual rose: the linear model is wrong at this distance

@@ -39,7 +39,7 @@ from contfil.engine.branch import PERIODIC_ORBIT, RELATIVE_PERIODIC_ORBIT
 from contfil.engine.default_flow import FlowOps
 from contfil.engine.floquet import floquet_multipliers
 from contfil.engine.problem_base import Problem, Stability
-from contfil.errors import SpecError
+from contfil.errors import DomainError, SpecError
 from contfil.protocol import Model, param_index
 
 Array = NDArray[np.float64]
@@ -188,6 +188,7 @@ class PeriodicOrbitProblem(Problem):
     def residual(self, x: Array, p: float) -> Array:
         self._ensure_ref(x, p)
         u, T = self.split(x)
+        _check_period(T)
         phi = self.ops.flow(u, self.params_at(p), T)
         return np.concatenate([phi - u, [self.f_ref @ (u - self.u_ref)]])
 
@@ -353,6 +354,7 @@ class RelativePeriodicOrbitProblem(PeriodicOrbitProblem):
     def residual(self, x: Array, p: float) -> Array:
         self._ensure_ref(x, p)
         u, T = self.split(x)
+        _check_period(T)
         th = float(x[self.dim + 1])
         phi = self.ops.flow(u, self.params_at(p), T)
         d = u - self.u_ref
@@ -390,3 +392,9 @@ class RelativePeriodicOrbitProblem(PeriodicOrbitProblem):
 
     def _drift_map(self, x: Array) -> Array | None:
         return self.G(float(x[self.dim + 1]))
+
+
+def _check_period(T: float) -> None:
+    """A shooting period must be positive and finite."""
+    if not (np.isfinite(T) and T > 0.0):
+        raise DomainError(f"shooting: the period left its domain (T = {T!r}, expected T > 0)")
