@@ -17,7 +17,7 @@ from contfil.engine.eigen import (
     merge_stability,
     shift_invert_stability,
 )
-from contfil.engine.problem_base import Problem, Stability, fd_step
+from contfil.engine.problem_base import Problem, Stability, fd_step, resolve_params
 from contfil.errors import ConvergenceError, NonFiniteError, SpecError
 from contfil.protocol import Model, param_index
 
@@ -84,14 +84,7 @@ class EquilibriumProblem(Problem):
         self.model = model
         self.param = param
         self.ip = param_index(model, param)
-        base = model.default_params() if params is None else np.asarray(params, dtype=float)
-        base = np.array(base, dtype=float)
-        if base.shape != (len(model.param_names),):
-            raise SpecError(
-                f"EquilibriumProblem: params has shape {base.shape}, model {model.name!r} "
-                f"has {len(model.param_names)} parameters {list(model.param_names)}"
-            )
-        self.base_params = base
+        self.base_params = resolve_params(model, params, "EquilibriumProblem")
         self.n = int(model.dim)
         self.dense = self.n <= dense_threshold
         self.fd_rel = float(fd_rel)

@@ -120,3 +120,18 @@ class Problem(ABC):
     def extra(self, x: Array) -> dict[str, float]:
         """Kind-specific unknowns in ``x`` (period, omega, drift)."""
         return {}
+
+
+def resolve_params(model: Any, params: Any, who: str) -> Array:
+    """The full parameter vector of ``model`` (its defaults if ``params`` is None),
+    checked against ``model.param_names``; ``who`` names the caller in the error."""
+    from contfil.errors import SpecError
+
+    base = model.default_params() if params is None else params
+    base = np.array(base, dtype=float)
+    if base.shape != (len(model.param_names),):
+        raise SpecError(
+            f"{who}: params has shape {base.shape}; model {model.name!r} "
+            f"has {len(model.param_names)} parameters {list(model.param_names)}"
+        )
+    return base

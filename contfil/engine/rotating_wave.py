@@ -34,7 +34,7 @@ from contfil.engine.branch import ROTATING_WAVE
 from contfil.engine.default_flow import FlowOps
 from contfil.engine.floquet import floquet_multipliers
 from contfil.engine.hookstep import newton_hookstep
-from contfil.engine.problem_base import Problem, Stability, fd_step
+from contfil.engine.problem_base import Problem, Stability, fd_step, resolve_params
 from contfil.errors import SpecError
 from contfil.protocol import Model, param_index
 
@@ -85,10 +85,7 @@ class RotatingWaveProblem(Problem):
         self.model = model
         self.param = param
         self.ip = param_index(model, param)
-        base = model.default_params() if params is None else np.asarray(params, dtype=float)
-        self.base_params = np.array(base, dtype=float)
-        if self.base_params.shape != (len(model.param_names),):
-            raise SpecError(f"RotatingWaveProblem: params has shape {self.base_params.shape}")
+        self.base_params = resolve_params(model, params, "RotatingWaveProblem")
         self.symmetry = sym[symmetry_index]
         self.L = np.asarray(self.symmetry.generator, dtype=float)
         self.group_period = self.symmetry.period if self.symmetry.period else 2 * np.pi

@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from contfil.engine.branch import PERIODIC_ORBIT, RELATIVE_PERIODIC_ORBIT
 from contfil.engine.default_flow import FlowOps
 from contfil.engine.floquet import floquet_multipliers
-from contfil.engine.problem_base import Problem, Stability
+from contfil.engine.problem_base import Problem, Stability, resolve_params
 from contfil.errors import DomainError, SpecError
 from contfil.protocol import Model, param_index
 
@@ -112,14 +112,7 @@ class PeriodicOrbitProblem(Problem):
         self.model = model
         self.param = param
         self.ip = param_index(model, param)
-        base = model.default_params() if params is None else np.asarray(params, dtype=float)
-        base = np.array(base, dtype=float)
-        if base.shape != (len(model.param_names),):
-            raise SpecError(
-                f"{type(self).__name__}: params has shape {base.shape}; model {model.name!r} "
-                f"has parameters {list(model.param_names)}"
-            )
-        self.base_params = base
+        self.base_params = resolve_params(model, params, type(self).__name__)
         self.subspace = None
         self.solve_model: Any = model
         if subspace is not None:
