@@ -13,7 +13,7 @@ For one model (``--model``) from its O(2) double Hopf point:
    (``PeriodicOrbitProblem(subspace="planar_xz")``), Floquet multipliers of
    the full 3D monodromy at every point; the out-of-plane pitchfork is a
    real multiplier crossing +1 whose mode leaves the plane
-   (``OutOfPlanePitchforkEvent``, contfil/models/filament/cycles.py);
+   (``SubspaceBreakingEvent``, contfil/engine/cycle_events.py);
 4. dt study at the pitchfork (``T/200``, ``T/400``, ``T/800``).
 
 Results go to ``docs/figures/filament_<model>_cycles.json``; ``--plot``
@@ -38,13 +38,12 @@ from typing import Any
 import numpy as np
 
 from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.cycle_events import cycle_events
+from contfil.engine.cycle_events import subspace_breaking_multipliers
 from contfil.engine.rotating_wave import rotating_wave_by_shooting
 from contfil.models.filament import FilamentModel
 from contfil.models.filament import stepper as fstepper
 from contfil.models.filament.cycles import (
     FixedStepFlow,
-    OutOfPlanePitchforkEvent,
     double_hopf,
     plane_fraction,
     solve_beating,
@@ -200,8 +199,7 @@ def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick
                               max_points=3 if quick else 60, p_max=p_max,
                               event_tol=float(np.sqrt(1 - theta)) * 1e-4 * ps,
                               event_max_iter=12, newton_max_iter=8, verbose=True)
-    events = [*cycle_events(), OutOfPlanePitchforkEvent()]
-    run = Continuation(pb, x1, p1, st, events=events)
+    run = Continuation(pb, x1, p1, st)  # default events include the subspace breaking
     pts, after = [], None
     for pt in run:
         T = pt.extra["period"]
@@ -234,7 +232,7 @@ def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick
                "T": sp.point.extra.get("period"),
                "freq": 1.0 / sp.point.extra["period"] if "period" in sp.point.extra else None,
                "multiplier": d.get("multiplier") if np.isscalar(d.get("multiplier")) else None,
-               "plane_fraction": d.get("plane_fraction"), "bracket": d.get("bracket"),
+               "plane_fraction": d.get("subspace_fraction"), "bracket": d.get("bracket"),
                "localisation_time": d.get("localisation_time")}
         if isinstance(d.get("multiplier"), complex):
             rec["multiplier"] = _c(d["multiplier"])
@@ -265,8 +263,7 @@ def dt_study(model: FilamentModel, sp: dict[str, Any],
         x, info = newton_hookstep(lambda z, pb=pb: pb.residual(z, p), x0,
                                   jvp=lambda z, v, pb=pb: pb.jvp(z, p, v), tol=1e-10)
         st = pb.stability(x, p)
-        ev = OutOfPlanePitchforkEvent()
-        c, _ = ev._cands(st)
+        c, _ = subspace_breaking_multipliers(pb.subspace, st)
         mu = float(c[int(np.argmin(np.abs(np.log(c))))]) if c.size else float("nan")
         out.append({"steps": steps, "T": float(x[-1]), "mu_out_of_plane": mu,
                     "newton_residual": info["residual"], "floquet": _floquet_summary(st),

@@ -18,11 +18,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from contfil.engine.problem_base import Stability
+from contfil.engine.cycle_events import subspace_fraction
 from contfil.models.filament import FilamentModel
 from contfil.models.filament.cycles import (
     FixedStepFlow,
-    OutOfPlanePitchforkEvent,
     double_hopf,
     plane_fraction,
     solve_beating,
@@ -58,6 +57,10 @@ def test_double_hopf_eigenspace_is_doubled_and_rotates(tip_ff):
     assert np.linalg.svd(B, compute_uv=False)[-1] > 0.5
     assert plane_fraction(dh["v_x"]) == pytest.approx(1.0)
     assert plane_fraction(dh["v_y"]) == pytest.approx(0.0, abs=1e-14)
+    # the engine's generic subspace test measures the same thing
+    sub = m.symmetries.invariant_subspaces["planar_xz"]
+    for v in (dh["v_x"], dh["v_y"], dh["v_x"] + 0.3 * dh["v_y"]):
+        assert subspace_fraction(sub, v) == pytest.approx(plane_fraction(v), abs=1e-14)
     ws = whirling_seed(m, dh)
     assert abs(abs(ws["m"]) - 1.0) < 1e-12 and ws["eig_residual"] < 1e-12
     assert abs(ws["omega_rw"]) == pytest.approx(dh["omega"], rel=1e-14)
@@ -126,22 +129,6 @@ def test_whirling_is_rigid_rotation_of_bdf2_flow(whirl):
     # second order in dt: halving the step divides the error by ~4
     assert errs[1] < 1e-2
     assert 3.0 < errs[0] / errs[1] < 5.0
-
-
-def test_out_of_plane_event_picks_out_of_plane_real_multipliers():
-    n = 6
-    v_in = np.zeros(n)
-    v_in[1] = 1.0  # U_2,y: in the x-z plane
-    v_out = np.zeros(n)
-    v_out[0] = 1.0  # U_2,x: out of plane
-    vals = np.array([1.2, 1.1, 0.9, 1.0], dtype=complex)
-    V = np.column_stack([v_in, v_out, v_out + 0.1 * v_in, v_out]).astype(complex)
-    st = Stability(vals, kind="multipliers", trivial=np.array([False, False, False, True]),
-                   vectors=V)
-    ev = OutOfPlanePitchforkEvent()
-    c, idx = ev._cands(st)
-    assert idx == [1, 2]  # the in-plane 1.2 and the trivial 1.0 are not candidates
-    np.testing.assert_allclose(c, [1.1, 0.9])
 
 
 @pytest.mark.slow

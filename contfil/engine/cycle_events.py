@@ -9,7 +9,13 @@
   determinant tells them apart exactly as for equilibria;
 - period doubling (``PERIOD_DOUBLING``): a real multiplier crosses -1;
 - torus / Neimark–Sacker (``TORUS``): a complex pair crosses ``|μ| = 1``,
-  test ``|μ| - 1``.
+  test ``|μ| - 1``;
+- symmetry-breaking pitchfork of an orbit solved in an invariant subspace
+  (``CYCLE_BRANCH_POINT`` with ``symmetry_breaking`` data,
+  :class:`SubspaceBreakingEvent`): a real multiplier crosses +1 with an
+  eigenvector outside the subspace. The shooting system of a subspace solve
+  cannot see it (its Jacobian lives in the subspace); the full-model
+  multipliers do.
 
 Multiplier tests skip the trivial multipliers (flagged by their eigenvectors
 in :mod:`contfil.engine.floquet`). Detection needs both the count of
@@ -38,6 +44,9 @@ __all__ = [
     "CycleBranchPointEvent",
     "PeriodDoublingEvent",
     "TorusEvent",
+    "SubspaceBreakingEvent",
+    "subspace_fraction",
+    "subspace_breaking_multipliers",
     "cycle_events",
 ]
 
@@ -110,8 +119,16 @@ class CycleBranchPointEvent(BranchPointEvent):
         return bool(ctx.problem.dense) or ctx.apply_bordered is None
 
     def _real(self, ctx: EventContext) -> NDArray[np.complex128]:
-        vals, _ = _nontrivial(ctx.stability)
-        return vals[_is_real(vals, self.imag_tol) & (vals.real > 0)]
+        sub = getattr(ctx.problem, "subspace", None)
+        st = ctx.stability if sub is None else ctx.stability_with_vectors()
+        vals, idx = _nontrivial(st)
+        keep = _is_real(vals, self.imag_tol) & (vals.real > 0)
+        if sub is not None and st.vectors is not None:
+            # modes leaving the subspace belong to SubspaceBreakingEvent
+            inside = np.array([subspace_fraction(sub, st.vectors[:, k]) >= 0.5 for k in idx],
+                              dtype=bool)
+            keep &= inside
+        return vals[keep]
 
     def values(self, ctx: EventContext) -> Array:
         if self._dense(ctx):
@@ -243,6 +260,120 @@ class TorusEvent(_MultiplierEvent):
         return self.kind, data
 
 
-def cycle_events() -> list[Event]:
-    """The default events of periodic-orbit branches."""
-    return [CycleFoldEvent(), CycleBranchPointEvent(), PeriodDoublingEvent(), TorusEvent()]
+def subspace_fraction(subspace: Any, v: NDArray) -> float:
+    """Fraction ``|P v| / |v|`` of a (complex) full-model vector in ``subspace``.
+
+    ``P = embed ∘ project`` is the orthogonal projector onto a coordinate
+    subspace (the filament's plane: one of three components per segment);
+    it is applied to the real and imaginary parts separately because
+    models' ``embed`` need not accept complex arrays.
+    """
+    v = np.asarray(v)
+    nv = float(np.linalg.norm(v))
+    if nv == 0.0:
+        return float("nan")
+
+    def P(w: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.asarray(subspace.embed(subspace.project(w)), dtype=float)
+
+    pv = np.hypot(np.linalg.norm(P(v.real)), np.linalg.norm(P(np.imag(v)))) \
+        if np.iscomplexobj(v) else np.linalg.norm(P(v))
+    return float(pv / nv)
+
+
+def subspace_breaking_multipliers(subspace: Any, st: Stability, imag_tol: float = 1e-6,
+                                  threshold: float = 0.5) -> tuple[NDArray[np.float64], list[int]]:
+    """Non-trivial real positive multipliers whose eigenvectors leave ``subspace``.
+
+    Returns their values and their column indices in ``st``; a mode is
+    outside when less than ``threshold`` of its norm lies in the subspace
+    (without eigenvectors every real positive multiplier is a candidate).
+    """
+    vals, idx = _nontrivial(st)
+    out: list[int] = []
+    for mu, k in zip(vals, idx, strict=True):
+        if abs(mu.imag) > imag_tol * max(1.0, abs(mu)) or mu.real <= 0:
+            continue
+        if st.vectors is None or subspace_fraction(subspace, st.vectors[:, k]) < threshold:
+            out.append(int(k))
+    return np.asarray(st.values, dtype=complex)[out].real, out
+
+
+class SubspaceBreakingEvent(Event):
+    """Symmetry-breaking pitchfork of an orbit solved in an invariant subspace.
+
+    For :class:`~contfil.engine.shooting.PeriodicOrbitProblem` with
+    ``subspace=...`` (a planar beating filament, say) the orbit is solved in
+    the reduced model and its multipliers in the full one. A real multiplier
+    crossing +1 whose eigenvector lies (mostly) outside the subspace — less
+    than half its norm inside, by :func:`subspace_fraction` — breaks the
+    symmetry that keeps the subspace invariant. Detection: the count of such
+    multipliers above +1 and the total unstable count both change;
+    localisation on ``log μ`` of the candidate nearest +1.
+
+    The new branch leaves the subspace, so it cannot be followed by the
+    subspace solve. With a continuous symmetry it generically drifts along
+    the group orbit (a relative periodic orbit: quasiperiodic in the lab
+    frame), so the point is reported ``switchable = False`` and kept for the
+    full-model and quasiperiodic tools.
+    """
+
+    name = "subspace_breaking"
+    kind = CYCLE_BRANCH_POINT
+    needs_stability = True
+    imag_tol = 1e-6
+    threshold = 0.5
+
+    def _cands(self, ctx: EventContext) -> tuple[NDArray[np.float64], list[int], Stability]:
+        st = ctx.stability_with_vectors()
+        sub = getattr(ctx.problem, "subspace", None)
+        if sub is None:
+            return np.zeros(0), [], st
+        c, idx = subspace_breaking_multipliers(sub, st, self.imag_tol, self.threshold)
+        return c, idx, st
+
+    def values(self, ctx: EventContext) -> Array:
+        c, _, st = self._cands(ctx)
+        return np.array([float(np.sum(c > 1.0)), float(st.n_unstable)])
+
+    def crossed(self, v0: Array, v1: Array) -> list[int]:
+        return [0] if (v0[0] != v1[0] and v0[1] != v1[1]) else []
+
+    def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
+        def g(ctx: EventContext) -> float:
+            c, _, _ = self._cands(ctx)
+            if c.size == 0:
+                return float("nan")
+            lg = np.log(c)
+            return float(lg[int(np.argmin(np.abs(lg)))])
+
+        return g
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        c, idx, st = self._cands(ctx)
+        if c.size == 0:
+            return None
+        k = int(np.argmin(np.abs(np.log(c))))
+        if abs(np.log(c[k])) > 1e-4:
+            return None
+        sub = ctx.problem.subspace
+        v = np.asarray(st.vectors[:, idx[k]], dtype=complex)
+        v = v * np.exp(-1j * np.angle(v[int(np.argmax(np.abs(v)))]))
+        return self.kind, {
+            "multiplier": float(c[k]), "test_value": float(np.log(c[k])),
+            "symmetry_breaking": f"leaves subspace {sub.name}",
+            "subspace_fraction": subspace_fraction(sub, v), "v_re": v.real.copy(),
+            "switchable": False,
+            "reason": "the new branch leaves the invariant subspace (full-model orbit, "
+                      "drifting along the group orbit if the model has a continuous symmetry)",
+        }
+
+
+def cycle_events(subspace: bool = False) -> list[Event]:
+    """The default events of periodic-orbit branches (``subspace``: the orbit
+    is solved in an invariant subspace, so add :class:`SubspaceBreakingEvent`)."""
+    evs: list[Event] = [CycleFoldEvent(), CycleBranchPointEvent(), PeriodDoublingEvent(),
+                        TorusEvent()]
+    if subspace:
+        evs.append(SubspaceBreakingEvent())
+    return evs

@@ -123,7 +123,8 @@ class EventContext:
         """Eigenvalues at the point (computed once, on first use)."""
         if self._stab is None:
             self._stab = self._compute_stability(vectors=self.settings.eig_vectors)
-            self._stab_vec = self.settings.eig_vectors
+            # some problems (Floquet by Arnoldi) return vectors at no extra cost
+            self._stab_vec = self.settings.eig_vectors or self._stab.vectors is not None
         return self._stab
 
     def stability_with_vectors(self) -> Stability:

@@ -248,10 +248,11 @@ class PeriodicOrbitProblem(Problem):
         return out
 
     def default_events(self) -> list:
-        """Fold, branch point, period doubling and torus of cycles."""
+        """Fold, branch point, period doubling and torus of cycles, and for a
+        subspace solve the symmetry-breaking pitchfork out of the subspace."""
         from contfil.engine.cycle_events import cycle_events
 
-        return cycle_events()
+        return cycle_events(subspace=self.subspace is not None)
 
     # --- stability -----------------------------------------------------------
     def _drift_map(self, x: Array) -> Array | None:

@@ -29,9 +29,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import brentq
 
-from contfil.engine.branch import CYCLE_BRANCH_POINT
-from contfil.engine.events import Event, EventContext
-from contfil.engine.problem_base import Stability
 from contfil.errors import ContfilError, ConvergenceError
 from contfil.models.protocol import InvariantSubspace, Symmetries
 
@@ -45,7 +42,6 @@ __all__ = [
     "beating_seed",
     "double_hopf",
     "leading_pair",
-    "OutOfPlanePitchforkEvent",
     "plane_fraction",
     "solve_beating",
     "solve_whirling",
@@ -262,63 +258,3 @@ def solve_beating(flow_model: FixedStepFlow, dh: dict[str, Any], eps: float,
     out = dict(info)
     out["residual"] = float(np.max(np.abs(pb.residual(x, p))))
     return pb, x, p, out
-
-
-class OutOfPlanePitchforkEvent(Event):
-    """A real Floquet multiplier of a planar orbit crossing +1 with an out-of-plane mode.
-
-    The shooting problem of a planar orbit solved in the planar subspace
-    cannot see this symmetry-breaking pitchfork (its bordered determinant
-    lives in the subspace); the full-model multipliers do. Candidates: the
-    non-trivial real positive multipliers whose eigenvector has less than
-    half its norm in the plane (:func:`plane_fraction`). Detection: their
-    count outside the unit circle and the total unstable count both change;
-    localisation on ``log mu`` of the candidate nearest the unit circle.
-    """
-
-    name = "out_of_plane_pitchfork"
-    kind = CYCLE_BRANCH_POINT
-    needs_stability = True
-    imag_tol = 1e-6
-
-    def _cands(self, st: Stability) -> tuple[NDArray[np.complex128], list[int]]:
-        vals = np.asarray(st.values, dtype=complex)
-        idx = []
-        for k, mu in enumerate(vals):
-            if st.trivial is not None and st.trivial[k]:
-                continue
-            if abs(mu.imag) > self.imag_tol * max(1.0, abs(mu)) or mu.real <= 0:
-                continue
-            if st.vectors is None or plane_fraction(st.vectors[:, k]) < 0.5:
-                idx.append(k)
-        return vals[idx].real, idx
-
-    def values(self, ctx: EventContext) -> Array:
-        c, _ = self._cands(ctx.stability)
-        return np.array([float(np.sum(c > 1.0)), float(ctx.stability.n_unstable)])
-
-    def crossed(self, v0: Array, v1: Array) -> list[int]:
-        return [0] if (v0[0] != v1[0] and v0[1] != v1[1]) else []
-
-    def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Any:
-        def g(ctx: EventContext) -> float:
-            c, _ = self._cands(ctx.stability)
-            if c.size == 0:
-                return float("nan")
-            lg = np.log(c)
-            return float(lg[int(np.argmin(np.abs(lg)))])
-
-        return g
-
-    def special_point_data(self, ctx: EventContext, j: int, ctx0: EventContext,
-                           ctx1: EventContext) -> tuple[str, dict[str, Any]] | None:
-        st = ctx.stability_with_vectors()
-        c, idx = self._cands(st)
-        if c.size == 0:
-            return None
-        k = int(np.argmin(np.abs(np.log(c))))
-        v = np.asarray(st.vectors[:, idx[k]])
-        v = v * np.exp(-1j * np.angle(v[int(np.argmax(np.abs(v)))]))
-        return self.kind, {"multiplier": float(c[k]), "test_value": float(np.log(c[k])),
-                           "plane_fraction": plane_fraction(v), "v_re": v.real.copy(),
-                           "symmetry_breaking": "out_of_plane", "switchable": True}

@@ -1,0 +1,105 @@
+"""Symmetry-breaking pitchfork of a cycle solved in an invariant subspace.
+
+Model (state ``(x, y, z)``, ``r² = x² + y²``, parameters ``beta, c``)::
+
+    ẋ = β x - y - x r²,   ẏ = x + β y - y r²,   ż = (c - r²) z - z³
+
+The plane ``z = 0`` is invariant (``z -> -z`` symmetry) and carries the
+Stuart–Landau cycle ``r² = β`` of period ``2π``. Its multipliers in the full
+model are 1 (time shift), ``exp(-4πβ)`` (in the plane) and
+``exp(2π (c - β))`` (out of the plane): a pitchfork breaking ``z -> -z`` at
+exactly ``β = c``. The planar shooting system cannot see it; the engine's
+:class:`SubspaceBreakingEvent` must, and the in-subspace branch-point test
+must not report it a second time.
+"""
+
+import numpy as np
+import pytest
+
+from contfil.engine.branch import CYCLE_BRANCH_POINT
+from contfil.engine.continuation import Continuation, ContinuationSettings
+from contfil.engine.cycle_events import (
+    SubspaceBreakingEvent,
+    subspace_breaking_multipliers,
+    subspace_fraction,
+)
+from contfil.engine.problem_base import Stability
+from contfil.engine.shooting import PeriodicOrbitProblem
+from contfil.protocol import FunctionModel, InvariantSubspace, Symmetries
+
+C = 0.5
+
+
+def _rhs(u, q):
+    beta, c = q
+    x, y, z = u
+    r2 = x * x + y * y
+    return np.array([beta * x - y - x * r2, x + beta * y - y * r2, (c - r2) * z - z**3])
+
+
+def _rhs_plane(v, q):
+    return _rhs(np.array([v[0], v[1], 0.0]), q)[:2]
+
+
+def tilted_plane_model() -> FunctionModel:
+    defaults = {"beta": 0.2, "c": C}
+    plane = InvariantSubspace(
+        "plane",
+        embed=lambda v: np.array([v[0], v[1], 0.0]),
+        project=lambda u: np.asarray(u)[:2].copy(),
+        reduced_model=lambda: FunctionModel(_rhs_plane, 2, defaults, name="plane"),
+    )
+    sym = Symmetries(reflections={"flip_z": np.diag([1.0, 1.0, -1.0])},
+                     invariant_subspaces={"plane": plane})
+    return FunctionModel(_rhs, 3, defaults, name="tilted_plane", symmetries=sym,
+                         u0=np.zeros(3))
+
+
+def test_subspace_fraction_of_real_and_complex_vectors():
+    m = tilted_plane_model()
+    sub = m.symmetries.invariant_subspaces["plane"]
+    assert subspace_fraction(sub, np.array([3.0, 4.0, 0.0])) == pytest.approx(1.0)
+    assert subspace_fraction(sub, np.array([0.0, 0.0, 2.0])) == pytest.approx(0.0)
+    v = np.array([1.0 + 1.0j, 0.0, 1.0 - 1.0j])
+    assert subspace_fraction(sub, v) == pytest.approx(np.sqrt(0.5))
+
+
+def test_candidates_skip_trivial_complex_and_in_plane_modes():
+    m = tilted_plane_model()
+    sub = m.symmetries.invariant_subspaces["plane"]
+    vals = np.array([1.0, 1.3, 0.7, 0.9 + 0.2j, 1.1], dtype=complex)
+    V = np.array([[1, 0, 0], [0, 0, 1], [0.1, 0, 1], [0, 1j, 1], [1, 0, 0.2]],
+                 dtype=complex).T
+    st = Stability(vals, kind="multipliers",
+                   trivial=np.array([True, False, False, False, False]), vectors=V)
+    c, idx = subspace_breaking_multipliers(sub, st)
+    # trivial 1.0, the complex pair and the in-plane 1.1 are not candidates
+    assert idx == [1, 2]
+    np.testing.assert_allclose(c, [1.3, 0.7])
+
+
+@pytest.mark.parametrize("dense_threshold", [40, 0], ids=["dense", "matrix_free"])
+def test_out_of_subspace_pitchfork_located_at_exact_value(dense_threshold):
+    m = tilted_plane_model()
+    pb = PeriodicOrbitProblem(m, "beta", steps=60, subspace="plane",
+                              dense_threshold=dense_threshold, nev=3)
+    assert any(isinstance(e, SubspaceBreakingEvent) for e in pb.default_events())
+    beta0 = 0.3
+    x0 = np.array([np.sqrt(beta0), 0.0, 2 * np.pi])
+    s = ContinuationSettings(ds=0.06, ds_max=0.08, max_points=12, p_max=0.75, event_tol=1e-10)
+    br = Continuation(pb, x0, beta0, s).run()
+    bps = [sp for sp in br.special_points if sp.kind == CYCLE_BRANCH_POINT]
+    # exactly one: the subspace test finds it, the in-plane test stays quiet
+    assert len(bps) == 1, [(sp.data.get("event"), sp.point.p) for sp in bps]
+    sp = bps[0]
+    assert sp.data["event"] == "subspace_breaking"
+    # 60 Radau IIA steps per period (h ≈ 0.1, rates ≤ 2): O(h⁵) ≈ 1e-7 in beta
+    assert sp.point.p == pytest.approx(C, abs=1e-6)
+    assert sp.data["multiplier"] == pytest.approx(1.0, abs=1e-8)
+    assert sp.data["subspace_fraction"] < 1e-6  # the z mode
+    assert sp.data["switchable"] is False
+    # stability along the branch: stable before, one unstable multiplier after
+    for pt in br.points:
+        if abs(pt.p - C) > 1e-3:
+            assert pt.n_unstable == (1 if pt.p < C else 0)
+            assert pt.extra["period"] == pytest.approx(2 * np.pi, abs=1e-6)
