@@ -51,6 +51,8 @@ from contfil.models.filament.cycles import (
 )
 
 ROOT = Path(__file__).resolve().parents[1]
+# the engine's event name, and the filament-only one of the stored runs
+PITCHFORK_EVENTS = ("subspace_breaking", "out_of_plane_pitchfork")
 FIG = ROOT / "docs" / "figures"
 
 # Bracket of the double Hopf point (from docs/filament-model.md) and safety
@@ -339,7 +341,7 @@ def run_model(name: str, parts: list[str], quick: bool, steps: int,
     if "dt" in parts:
         b = load(name, "beating", quick)
         sps = [] if b is None else [s for s in b["special"]
-                                    if s.get("event") == "out_of_plane_pitchfork"]
+                                    if s.get("event") in PITCHFORK_EVENTS]
         if not sps:
             print(f"[{name}] dt study skipped: no out-of-plane pitchfork stored")
             return
@@ -390,7 +392,7 @@ def table() -> None:
         if b is None:
             continue
         pts = b["points"]
-        pf = [s for s in b["special"] if s.get("event") == "out_of_plane_pitchfork"]
+        pf = [s for s in b["special"] if s.get("event") in PITCHFORK_EVENTS]
         pfs = f"{pf[0]['p']:.6g}" if pf else "not reached"
         pft = f"{pf[0]['T']:.6g}, {1 / pf[0]['T']:.5g}" if pf else ""
         print(f"| {name} | {b['first']['p']:.6g}, {b['first']['T']:.6g} | "

@@ -131,3 +131,31 @@ def test_shift_invert_matches_dense_leading_eigenvalues():
     np.testing.assert_allclose(si.values[:4], dense.values[:4], atol=1e-8)
     assert si.residual < 1e-6
     assert dense.n_unstable == 0 and dense.values[0].imag > 0
+
+
+class PartlyDefinedEvent(Event):
+    """Detected by a count, localised on a test defined only for u >= 0.65
+    (as log|μ| of the real negative multipliers is undefined while they are a
+    complex pair): the crossing step starts where the test is defined and ends
+    where it is not."""
+
+    name, kind = "partly_defined", "partly_defined_level"
+
+    def values(self, ctx):
+        return np.array([1.0 if ctx.x[0] > 0.7 else -1.0])
+
+    def localiser(self, ctx0, ctx1, j):
+        return lambda ctx: float(ctx.x[0] - 0.7) if ctx.x[0] >= 0.65 else float("nan")
+
+
+def test_localiser_undefined_at_one_bracket_end_is_bisected():
+    # x = sqrt(mu): the step with ds = 0.1 goes from x = 0.715 to x = 0.631, where
+    # the test is undefined; the bracket is halved until both ends are defined
+    # (before, the crossing was silently dropped).
+    e = pitchfork()
+    pb = EquilibriumProblem(e.model, "mu")
+    s = ContinuationSettings(ds=0.1, ds_max=0.1, adapt=False, p_min=0.05, max_points=50)
+    br = continue_branch(pb, np.array([1.0]), 1.0, s, direction=-1, events=[PartlyDefinedEvent()])
+    (sp,) = _special(br, "partly_defined_level")
+    assert sp.point.u[0] == pytest.approx(0.7, abs=1e-10) and sp.point.p == pytest.approx(0.49)
+    assert sp.data["bracket_halvings"] >= 1 and sp.data["localisation"] == "converged"

@@ -97,9 +97,38 @@ def test_out_of_subspace_pitchfork_located_at_exact_value(dense_threshold):
     assert sp.point.p == pytest.approx(C, abs=1e-6)
     assert sp.data["multiplier"] == pytest.approx(1.0, abs=1e-8)
     assert sp.data["subspace_fraction"] < 1e-6  # the z mode
-    assert sp.data["switchable"] is False
+    assert sp.data["switchable"] is True  # cycles_leaving_subspace follows it
     # stability along the branch: stable before, one unstable multiplier after
     for pt in br.points:
         if abs(pt.p - C) > 1e-3:
             assert pt.n_unstable == (1 if pt.p < C else 0)
             assert pt.extra["period"] == pytest.approx(2 * np.pi, abs=1e-6)
+
+
+def test_switch_onto_the_branch_leaving_the_subspace():
+    from contfil.engine.cycle_switching import cycles_leaving_subspace
+
+    m = tilted_plane_model()
+    pb = PeriodicOrbitProblem(m, "beta", steps=60, subspace="plane", nev=3)
+    beta0 = 0.3
+    x0 = np.array([np.sqrt(beta0), 0.0, 2 * np.pi])
+    s = ContinuationSettings(ds=0.06, ds_max=0.08, max_points=8, p_max=0.6, event_tol=1e-10)
+    br = Continuation(pb, x0, beta0, s).run()
+    sp = next(sp for sp in br.special_points if sp.kind == CYCLE_BRANCH_POINT)
+    # z -> -z fixes the plane and flips the critical mode: halves are mirror images
+    assert sp.data["broken_reflection"] == "flip_z"
+    halves = []
+    for side in (1, -1):
+        start = cycles_leaving_subspace(pb, sp, eps=0.1, side=side)
+        assert start.problem.subspace is None and start.problem.dim == 3
+        assert start.info["side"] == -1.0  # the tilted cycles exist for beta < c
+        new = start.run(ContinuationSettings(ds=0.05, ds_max=0.1, max_points=4, p_min=0.1),
+                        events=[])
+        for pt in new.points:
+            # exact: r² = beta, z² = c - beta, T = 2π (60 Radau steps: O(h⁵))
+            assert pt.u[2] ** 2 == pytest.approx(C - pt.p, abs=1e-7)
+            assert np.hypot(*pt.u[:2]) ** 2 == pytest.approx(pt.p, abs=1e-7)
+            assert pt.extra["period"] == pytest.approx(2 * np.pi, abs=1e-6)
+            assert pt.n_unstable == 0  # supercritical: the tilted cycles are stable
+        halves.append(np.sign(new.points[-1].u[2]))
+    assert halves[0] == -halves[1]

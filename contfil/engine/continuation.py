@@ -722,25 +722,72 @@ class Continuation:
         return pt
 
     # ------------------------------------------------------------------ events
+    def _solve_between(self, A: tuple, B: tuple, trial: float, X0: Array, c0: Array,
+                       g: Callable, dxds: Callable):  # noqa: ANN202
+        """The solution at hyperplane coordinate ``trial`` between bracket
+        ends ``A`` and ``B`` (tuples ``(s, X, dX/ds, ctx, g)``), from a cubic
+        Hermite guess; ``None`` if the corrector fails."""
+        sa, Xa, da, _, _ = A
+        sb, Xb, db, _, _ = B
+        L = sb - sa
+        t = (trial - sa) / L
+        h00, h10 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t
+        h01, h11 = -2 * t**3 + 3 * t**2, t**3 - t**2
+        guess = h00 * Xa + h10 * L * da + h01 * Xb + h11 * L * db
+        Xt, info = self._solve(guess, c0, float(c0 @ X0) + trial)
+        if not info.converged:
+            return None
+        ctx = self._context(Xt, self._tau_loc)
+        return (trial, Xt, dxds(ctx), ctx, g(ctx))
+
     def _localise_step(self, A: tuple, B: tuple, X0: Array, c0: Array, g: Callable, dxds: Callable):  # noqa: ANN202
         """One safeguarded secant step between bracket ends ``A`` and ``B``
         (tuples ``(s, X, dX/ds, ctx, g)``); ``None`` if the corrector fails."""
-        sa, Xa, da, _, ga = A
-        sb, Xb, db, _, gb = B
+        sa, ga = A[0], A[4]
+        sb, gb = B[0], B[4]
         L = sb - sa
         sm = sb - gb * L / (gb - ga) if ga != gb else 0.5 * (sa + sb)
         lo, hi = min(sa, sb), max(sa, sb)
         if not (lo < sm < hi):
             sm = 0.5 * (sa + sb)
         for trial in (sm, 0.5 * (sa + sb)):
-            t = (trial - sa) / L
-            h00, h10 = 2 * t**3 - 3 * t**2 + 1, t**3 - 2 * t**2 + t
-            h01, h11 = -2 * t**3 + 3 * t**2, t**3 - t**2
-            guess = h00 * Xa + h10 * L * da + h01 * Xb + h11 * L * db
-            Xt, info = self._solve(guess, c0, float(c0 @ X0) + trial)
-            if info.converged:
-                ctx = self._context(Xt, self._tau_loc)
-                return (trial, Xt, dxds(ctx), ctx, g(ctx))
+            M = self._solve_between(A, B, trial, X0, c0, g, dxds)
+            if M is not None:
+                return M
+        return None
+
+    def _finite_bracket(self, A: tuple, B: tuple, X0: Array, c0: Array, g: Callable,
+                        dxds: Callable):  # noqa: ANN202
+        """Shrink ``[A, B]`` until the localiser is finite at both ends, when it
+        is finite at exactly one of them.
+
+        A multiplier test can be undefined on part of a step: the
+        period-doubling test is ``log|μ|`` of the real negative multipliers,
+        and a complex pair that reaches the negative real axis and sends one
+        multiplier through -1 within one step has none at the left end (the
+        crossing was then dropped silently). The crossing itself lies where
+        the test is defined, so bisection keeps the half that still brackets
+        a sign change of ``g`` or reaches the undefined part: ``M`` undefined
+        moves the undefined end, ``M`` of the sign of the defined end moves
+        that end, the opposite sign closes the bracket. Returns ``(A, B,
+        halvings)`` (ordered along the step) or ``None``. Events that return
+        an undefined value at *both* ends ask the driver to skip the
+        localisation (the bordered branch-point test does); that is kept.
+        """
+        if np.isfinite(A[4]):
+            A, B = B, A  # A is the undefined end
+        for k in range(1, self.settings.event_max_iter + 1):
+            if abs(B[0] - A[0]) <= self.settings.event_tol:
+                return None
+            M = self._solve_between(A, B, 0.5 * (A[0] + B[0]), X0, c0, g, dxds)
+            if M is None:
+                return None
+            if not np.isfinite(M[4]):
+                A = M
+            elif M[4] * B[4] > 0:
+                B = M
+            else:
+                return (M, B, k) if M[0] < B[0] else (B, M, k)
         return None
 
     def _localise(self, ev: Event, j: int, r0: _Rec, r1: _Rec) -> tuple[float, SpecialPoint] | None:
@@ -753,8 +800,6 @@ class Continuation:
         h = float(c0 @ (r1.X - X0))
         g = ev.localiser(r0.ctx, r1.ctx, j)
         ga, gb = g(r0.ctx), g(r1.ctx)
-        if not (np.isfinite(ga) and np.isfinite(gb)) or ga * gb > 0:
-            return None
 
         def dxds(ctx: EventContext) -> Array:
             # Derivative of the branch with respect to the hyperplane coordinate s.
@@ -765,6 +810,20 @@ class Continuation:
         # crossing branch near a branch point; Hermite error is O(bracket^4).
         A = (0.0, X0, dxds(r0.ctx), r0.ctx, ga)
         B = (h, r1.X, dxds(r1.ctx), r1.ctx, gb)
+        halvings = 0
+        if np.isfinite(ga) != np.isfinite(gb):
+            try:
+                found = self._finite_bracket(A, B, X0, c0, g, dxds)
+            except ContfilError:
+                found = None
+            if found is None:
+                return None
+            A, B, halvings = found
+            ga, gb = A[4], B[4]
+        # both undefined: the event asks to skip (e.g. another border set of
+        # the bordered branch-point test already gave this point)
+        if not (np.isfinite(ga) and np.isfinite(gb)) or ga * gb > 0:
+            return None
         best = B if abs(gb) < abs(ga) else A
         s_prev = None
         t_start = time.perf_counter()
@@ -815,6 +874,7 @@ class Continuation:
         data["bracket"] = float(abs(b - a))
         data["tolerance"] = float(s.event_tol)
         data["localisation"] = status
+        data["bracket_halvings"] = halvings
         data["localisation_time"] = time.perf_counter() - t_start
         pt = self._make_point(ctx, None, t_start, getattr(self.problem, "rhs_evals", 0))
         if pt.eigenvalues is None and ev.needs_stability:

@@ -299,6 +299,25 @@ def subspace_breaking_multipliers(subspace: Any, st: Stability, imag_tol: float 
     return np.asarray(st.values, dtype=complex)[out].real, out
 
 
+def _broken_reflection(problem: Any, v: NDArray[np.float64]) -> str | None:
+    """A declared reflection that fixes ``problem.subspace`` pointwise and flips ``v``."""
+    model = getattr(problem, "model", None)
+    sub = problem.subspace
+    refl = getattr(getattr(model, "symmetries", None), "reflections", None) or {}
+    if not refl:
+        return None
+    w = np.asarray(sub.embed(np.cos(np.arange(1.0, 1.0 + problem.dim))), dtype=float)
+    nv = float(np.linalg.norm(v))
+    for name, R in refl.items():
+        R = np.asarray(R, dtype=float)
+        if R.shape != (w.size, w.size):
+            continue
+        if np.linalg.norm(R @ w - w) <= 1e-10 * np.linalg.norm(w) and \
+                np.linalg.norm(R @ v + v) <= 1e-3 * nv:
+            return str(name)
+    return None
+
+
 class SubspaceBreakingEvent(Event):
     """Symmetry-breaking pitchfork of an orbit solved in an invariant subspace.
 
@@ -311,11 +330,12 @@ class SubspaceBreakingEvent(Event):
     multipliers above +1 and the total unstable count both change;
     localisation on ``log μ`` of the candidate nearest +1.
 
-    The new branch leaves the subspace, so it cannot be followed by the
-    subspace solve. With a continuous symmetry it generically drifts along
-    the group orbit (a relative periodic orbit: quasiperiodic in the lab
-    frame), so the point is reported ``switchable = False`` and kept for the
-    full-model and quasiperiodic tools.
+    The new branch leaves the subspace: it is followed in the full model
+    (:func:`~contfil.engine.cycle_switching.cycles_leaving_subspace`; with a
+    continuous symmetry it generically drifts along the group orbit, a
+    relative periodic orbit). ``broken_reflection`` names a declared
+    reflection that fixes the subspace and flips the critical mode (the two
+    halves of the pitchfork are then mirror images).
     """
 
     name = "subspace_breaking"
@@ -359,14 +379,16 @@ class SubspaceBreakingEvent(Event):
         sub = ctx.problem.subspace
         v = np.asarray(st.vectors[:, idx[k]], dtype=complex)
         v = v * np.exp(-1j * np.angle(v[int(np.argmax(np.abs(v)))]))
-        return self.kind, {
+        data = {
             "multiplier": float(c[k]), "test_value": float(np.log(c[k])),
             "symmetry_breaking": f"leaves subspace {sub.name}",
             "subspace_fraction": subspace_fraction(sub, v), "v_re": v.real.copy(),
-            "switchable": False,
-            "reason": "the new branch leaves the invariant subspace (full-model orbit, "
-                      "drifting along the group orbit if the model has a continuous symmetry)",
+            "switchable": True,
         }
+        refl = _broken_reflection(ctx.problem, v.real)
+        if refl is not None:
+            data["broken_reflection"] = refl
+        return self.kind, data
 
 
 def cycle_events(subspace: bool = False) -> list[Event]:

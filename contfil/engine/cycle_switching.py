@@ -54,7 +54,7 @@ from contfil.engine.hookstep import newton_hookstep
 from contfil.engine.problem_base import Problem
 from contfil.engine.rotating_wave import RotatingWaveProblem
 from contfil.engine.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
-from contfil.engine.switching import hopf_data, o2_hopf_modes
+from contfil.engine.switching import branch_point_tangents, hopf_data, o2_hopf_modes
 from contfil.errors import ContfilError, ConvergenceError
 from contfil.protocol import Model
 
@@ -68,6 +68,7 @@ __all__ = [
     "standing_wave_from_double_hopf",
     "cycles_from_branch_point",
     "cycles_from_period_doubling",
+    "cycles_leaving_subspace",
     "x_from_point",
 ]
 
@@ -359,10 +360,23 @@ def cycles_from_branch_point(
 ) -> BranchStart:
     """First cycle of the bifurcating branch at a pitchfork (branch point) of cycles.
 
-    Direction: the second tangent ``data["tangent2"]`` when the branch point
-    was found on a dense problem, else the critical Floquet eigenvector
+    Direction: on a dense problem the root of the algebraic bifurcation
+    equation in the null space of ``[G_x G_p]`` that is not the incoming
+    branch (:func:`~contfil.engine.switching.branch_point_tangents`, told
+    apart by ``data["tangent_in"]``, the tangent before the point); its
+    coefficients are returned in ``info`` as ``abe_*``. Without an incoming
+    tangent, ``data["tangent2"]`` (the null vector orthogonal to the tangent
+    at the point); matrix-free, the critical Floquet eigenvector
     ``data["v_re"]`` (state part; ``T`` unchanged). ``side = ±1`` picks one
     of the two conjugate halves.
+
+    The orthogonal null vector alone is the new branch's direction only when
+    the two branches cross at a right angle in the arclength metric. On the
+    symmetric cycles of the electronic circuit
+    (:func:`~contfil.models.catalog.cycles_published.freire_circuit`) the
+    symmetry-breaking direction has ``δT = 0`` while the old branch moves
+    mostly in ``T``, with nearly parallel ``δu``: ``tangent2`` led straight
+    back onto the symmetric branch.
     """
     if sp.kind != CYCLE_BRANCH_POINT:
         raise ContfilError(
@@ -372,8 +386,16 @@ def cycles_from_branch_point(
     p_bp = float(sp.point.p)
     n = problem.n
     t2 = sp.data.get("tangent2")
+    # the tangent before the branch point tells the old branch apart (the one
+    # at the point itself is not determined, see BranchPointEvent)
+    t1 = sp.data.get("tangent_in", sp.data.get("tangent"))
+    abe: dict[str, Any] = {}
     if t2 is not None:
         dx = np.asarray(t2[:n], dtype=float)
+        if t1 is not None and problem.dense:
+            problem.set_reference(x_bp[: problem.dim], p_bp)
+            _, d, abe = branch_point_tangents(problem, x_bp, p_bp, np.asarray(t1, dtype=float))
+            dx = d[:n]
     elif sp.data.get("v_re") is not None:
         v = np.asarray(sp.data["v_re"], dtype=float)
         if problem.subspace is not None:
@@ -388,7 +410,70 @@ def cycles_from_branch_point(
     x1, p1, info = solve_with_amplitude(problem, x_bp + eps * dx, p_bp, x_bp, dx, eps)
     return _start(problem, (x1, p1), np.concatenate([x_bp, [p_bp]]), {
         "from": sp.kind, "p_star": p_bp, "eps": eps, "side": float(np.sign(p1 - p_bp)),
-        "newton_iterations": info["iterations"]})
+        "newton_iterations": info["iterations"], **{f"abe_{k}": v for k, v in abe.items()}})
+
+
+
+def cycles_leaving_subspace(
+    problem: PeriodicOrbitProblem,
+    sp: SpecialPoint,
+    *,
+    eps: float = 0.05,
+    side: int = +1,
+    symmetry_index: int = 0,
+) -> BranchStart:
+    """First orbit of the branch born where a subspace orbit breaks symmetry.
+
+    ``sp`` is a :class:`~contfil.engine.cycle_events.SubspaceBreakingEvent`
+    point of ``problem`` (an orbit solved in an invariant subspace). The new
+    branch leaves the subspace, so it is solved in the full model: as a
+    :class:`RelativePeriodicOrbitProblem` (unknowns ``u, T`` and the drift
+    ``θ``, which the broken reflection no longer pins to 0) when the model
+    has a continuous symmetry, else as a plain :class:`PeriodicOrbitProblem`.
+    Seed: the embedded orbit plus ``side · ε`` times the critical Floquet
+    eigenvector (``data["v_re"]``), ``T`` and ``θ = 0``; the amplitude along
+    that eigenvector is fixed and ``p`` solved for. The two sides are
+    mirror images when ``data["broken_reflection"]`` is set.
+    """
+    if sp.kind != CYCLE_BRANCH_POINT or problem.subspace is None:
+        raise ContfilError(
+            "cycles_leaving_subspace needs a cycle branch point of an orbit solved in an "
+            f"invariant subspace, got {sp.kind!r}"
+            + ("" if problem.subspace is not None else " on a full-space problem"))
+    if sp.data.get("v_re") is None:
+        raise ContfilError("subspace-breaking point without its critical eigenvector")
+    x_r = x_from_point(problem, sp)
+    p_bp = float(sp.point.p)
+    U = np.asarray(problem.subspace.embed(x_r[: problem.dim]), dtype=float)
+    T = float(x_r[problem.dim])
+    v = side * _unit_real(sp.data["v_re"])
+    if v.size != U.size:
+        raise ContfilError(f"critical eigenvector has {v.size} entries, the full state {U.size}")
+    model = problem.model
+    kw: dict[str, Any] = {"steps": problem.steps, "nev": problem.nev,
+                          "floquet_tol": problem.floquet_tol,
+                          "floquet_kmax": problem.floquet_kmax,
+                          "period_means": problem.period_means, **problem._flow_kw}
+    new: PeriodicOrbitProblem
+    if model.symmetries.continuous:
+        new = RelativePeriodicOrbitProblem(model, problem.param, problem.base_params,
+                                           symmetry_index=symmetry_index, **kw)
+        x_star = np.concatenate([U, [T, 0.0]])
+    else:
+        new = PeriodicOrbitProblem(model, problem.param, problem.base_params, **kw)
+        x_star = np.concatenate([U, [T]])
+    dx = np.concatenate([v, np.zeros(new.n - v.size)])
+    new.set_reference(U + eps * v, p_bp)
+    try:
+        x1, p1, info = solve_with_amplitude(new, x_star + eps * dx, p_bp, x_star, dx, eps)
+    except ConvergenceError as exc:
+        raise ConvergenceError(f"branch leaving subspace {problem.subspace.name!r}: {exc}") \
+            from exc
+    out = {"from": sp.kind, "p_star": p_bp, "eps": eps, "side": float(np.sign(p1 - p_bp)),
+           "newton_iterations": info["iterations"], "left_subspace": problem.subspace.name}
+    if isinstance(new, RelativePeriodicOrbitProblem):
+        out["drift"] = float(x1[new.dim + 1])
+    return _start(new, (x1, p1), np.concatenate([x_star, [p_bp]]), out)
 
 
 def cycles_from_period_doubling(

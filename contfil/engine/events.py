@@ -622,7 +622,13 @@ class BranchPointEvent(Event):
         return g
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
-        data: dict[str, Any] = {"switchable": True, "tangent": ctx.tangent.copy()}
+        # At the branch point itself the tangent is not determined (the null
+        # space of [G_x G_p] is two-dimensional; the bordered solve returns
+        # whatever null vector its border leaves free, often the *other*
+        # branch's). "tangent_in" is the tangent at the last regular point
+        # before it: that is what tells the incoming branch apart.
+        data: dict[str, Any] = {"switchable": True, "tangent": ctx.tangent.copy(),
+                                "tangent_in": ctx0.tangent.copy()}
         if self._dense(ctx):
             data["test_value"] = float(self.values(ctx)[0])
             return self.kind, data

@@ -192,7 +192,7 @@ def switch_at_branch_point(
     if x.size != problem.n:
         # Problems whose x is not the state (should carry the full x in data).
         x = np.asarray(special_point.data.get("x", x), float)
-    tau_in = special_point.data.get("tangent", pt.tangent)
+    tau_in = special_point.data.get("tangent_in", special_point.data.get("tangent", pt.tangent))
     _, tau2, info = branch_point_tangents(problem, x, pt.p, tau_in, theta=s.theta)
     n = problem.n
     w = _weights(n, s.theta)

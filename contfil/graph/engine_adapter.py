@@ -368,6 +368,12 @@ def default_switchers(standing_subspace: str | None = "auto",
 
     if hasattr(cs, "cycles_from_branch_point"):
         def cycle_bp(sp: Any, branch: Any, problem: Any) -> list[Seed]:
+            if sp.data.get("event") == "subspace_breaking":
+                # out of an invariant subspace: the full model (drifting if it
+                # has a continuous symmetry); mirror-image halves need one side
+                sides = (1,) if sp.data.get("broken_reflection") else (1, -1)
+                return [one_way(cs.cycles_leaving_subspace(problem, sp, side=s),
+                                f"leaves subspace {s:+d}") for s in sides]
             return [one_way(cs.cycles_from_branch_point(problem, sp, side=s), f"{s:+d}")
                     for s in (1, -1)]
 
