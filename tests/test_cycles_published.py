@@ -2,8 +2,8 @@
 
 1. Lur'e adaptive-control system (period doubling), below.
 2. Electronic circuit of Freire et al. (fold, torus, period doubling at
-   MatCont's published values; branch point of the symmetric system), in the
-   second half of the file.
+   MatCont's published values; branch point of the symmetric system at the
+   value of AUTO-07p's reference output), in the second half of the file.
 
 Adaptive control (Lur'e) system ẋ = y, ẏ = z, ż = -α z - β y - x + x², β = 1
 (MatCont manual, Govaerts, Kuznetsov, Meijer et al., "Adaptive control
@@ -36,6 +36,7 @@ from contfil.engine.continuation import Continuation, ContinuationSettings
 from contfil.engine.cycle_switching import cycles_from_branch_point, cycles_from_hopf
 from contfil.engine.equilibrium import EquilibriumProblem
 from contfil.models.catalog.cycles_published import (
+    FREIRE_AUTO_DEMO,
     freire_circuit,
     freire_jacobian,
     freire_rhs,
@@ -112,12 +113,12 @@ def test_liouville_along_branch(lure_branch):
 # a3 = 0.328578, b3 = 0.933578 the period at PD is 9.2568471 (published
 # 9.256846), with MatCont's 0.32858, 0.93358 it is 9.2568462.
 #
-# The branch point of cycles needs the symmetric system (ε = 0); there the
-# published record is qualitative (AUTO demo: BP on the cycles from the Hopf
-# point, TR on the branch from BP; MatCont: "on the emerging branch of limit
-# cycles a branch point of limit cycles is found; by continuing the newly
-# found branch one detects a torus bifurcation"); we found no published value
-# of ν at the branch point. Its location is checked against an independent
+# The branch point of cycles needs the symmetric system (ε = 0). The MatCont
+# manual's account is qualitative ("on the emerging branch of limit cycles a
+# branch point of limit cycles is found; by continuing the newly found branch
+# one detects a torus bifurcation"); the numbers are in AUTO-07p's reference
+# output of its demo test suite (test/hyper.all, demo tor), asserted at the
+# end of this file. The location is also checked against an independent
 # computation (symmetric orbits u(t + T/2) = -u(t) solved with scipy's DOP853,
 # the symmetry-breaking condition det(Dφ_{T/2} - I) = 0), and the unfolding
 # ε -> 0 of the published ε = 0.001 values is checked in a slow test.
@@ -130,8 +131,8 @@ HOPF_NU_EPS = -0.589286  # MatCont manual, ε = 0.001 (6 digits)
 HOPF_NU_EXACT = (-43.0 + np.sqrt(799.0)) / 25.0  # ε = 0: a1 a2 = a3 of the origin
 
 
-def _freire_cycles(eps, steps=80, p_min=-0.63, max_points=40):
-    m = freire_circuit(eps=eps)
+def _freire_cycles(eps, steps=80, p_min=-0.63, max_points=40, **consts):
+    m = freire_circuit(eps=eps, **consts)
     eq = Continuation(EquilibriumProblem(m, "nu"), m.initial_state(None), -0.9,
                       ContinuationSettings(ds=0.05, max_points=30, p_max=-0.55)).run()
     hopf = next(sp for sp in eq.special_points if sp.kind == HOPF)
@@ -312,3 +313,90 @@ def test_freire_unfolding_towards_the_symmetric_system(freire_broken):
     for k, d in dist.items():
         assert d[0] > d[1] > d[2], (k, d)
         assert d[2] < 1e-4, (k, d)
+
+
+# ----------------------------------------------------------------------------
+# AUTO-07p's own numbers for the symmetric circuit (ε = 0). The AUTO-07p
+# repository (github.com/auto-07p/auto-07p) ships the reference output of its
+# demo test suite, test/hyper.all (what `auto selec.auto` / `auto all.auto`
+# is compared against, see test/README). Section "Doing tor", with the demo's
+# constants a3 = 0.328578, b3 = 0.933578 (tor.f90) and the cycles continued
+# from the Hopf point with NTST = 25, NCOL = 4, adaptive mesh (c.tor.2):
+#
+#   first run   HB  ν = -5.89337E-01
+#   second run  LP  ν = -5.84335E-01   L2-norm 1.52570E-01   period 8.42647E+00
+#               BP  ν = -5.87029E-01   L2-norm 2.08647E-01   period 8.68967E+00
+#   third run (the branch switched at that BP, ISW = -1)
+#               TR  ν = -5.91650E-01                         period 8.79415E+00
+#               PD  ν = -6.14955E-01                         period 9.26630E+00
+#
+# Six significant digits: rounding alone is ±5e-7 in ν and in the L2-norm and
+# ±5e-6 in T. The tolerances are one unit in the last printed digit (1e-6 in
+# ν and L2-norm, 1e-5 in T), the same rule as for MatCont above: half a unit
+# of rounding, half for AUTO's own error. AUTO's collocation error with
+# 25 x 4 points on an adaptive mesh is of the size MatCont showed above
+# (≈1e-7); its a-priori localisation bound (secant on the test function until
+# the arclength step is below EPSS = 1e-5) is looser, but the secant converges
+# superlinearly and the agreement below shows the actual error is within the
+# half unit. Ours (80 Radau steps, own error ≤ 1e-9) differ from the printed
+# values by at most 2.3e-7 in ν (2.6e-8 at the BP) and 3.3e-6 in T, and all of
+# them round to the printed digits. The L2-norm (AUTO: sqrt of the integral of |u|² over the
+# scaled period) is recomputed from our BP state with DOP853: 0.20864646,
+# 5.4e-7 from the printed 0.208647.
+# ----------------------------------------------------------------------------
+
+AUTO_HB_NU = -0.589337  # AUTO-07p test/hyper.all, demo tor, 6 digits
+AUTO_LP_NU, AUTO_LP_T = -0.584335, 8.42647
+AUTO_BP_NU, AUTO_BP_T, AUTO_BP_L2 = -0.587029, 8.68967, 0.208647
+AUTO_TR_NU, AUTO_TR_T = -0.591650, 8.79415
+AUTO_PD_NU, AUTO_PD_T = -0.614955, 9.26630
+
+
+@pytest.fixture(scope="module")
+def freire_auto_demo():
+    return _freire_cycles(0.0, p_min=-0.59, max_points=20, **FREIRE_AUTO_DEMO)
+
+
+def test_freire_branch_point_of_cycles_at_auto_reference_value(freire_auto_demo):
+    m, hopf, start, br = freire_auto_demo
+    assert hopf.point.p == pytest.approx(AUTO_HB_NU, abs=1e-6)
+    ev = _events(br)
+    # AUTO's order on this branch: LP then BP, and the BP is a branch point,
+    # not a second fold
+    assert [sp.kind for sp in ev] == [CYCLE_FOLD, CYCLE_BRANCH_POINT]
+    lp, bp = ev
+    i, j = lp.index, bp.index
+    assert br.points[i].p < lp.point.p and br.points[i + 1].p < lp.point.p  # ν turns
+    assert br.points[j].p > bp.point.p > br.points[j + 1].p  # ν goes straight through
+    assert bp.data["localisation"] == "converged"
+    assert bp.data["multiplier"] == pytest.approx(1.0, abs=1e-6)
+    for sp, nu, T in ((lp, AUTO_LP_NU, AUTO_LP_T), (bp, AUTO_BP_NU, AUTO_BP_T)):
+        assert sp.point.p == pytest.approx(nu, abs=1e-6)
+        assert sp.point.extra["period"] == pytest.approx(T, abs=1e-5)
+    # the same orbit: AUTO's L2-norm sqrt(∫_0^1 |u(sT)|² ds) at the BP
+    q = m.default_params().copy()
+    q[0] = bp.point.p
+    T = bp.point.extra["period"]
+    sol = solve_ivp(lambda t, u: freire_rhs(u, q), (0.0, T), bp.point.u, method="DOP853",
+                    rtol=1e-12, atol=1e-14, dense_output=True)
+    t = np.linspace(0.0, T, 4001)
+    U = sol.sol(t)
+    assert np.max(np.abs(U[:, -1] - U[:, 0])) < 1e-8  # closed orbit
+    # trapezoid on a periodic integrand: spectrally accurate
+    l2 = np.sqrt(np.sum((U[:, :-1] ** 2).sum(axis=0)) / (len(t) - 1))
+    assert l2 == pytest.approx(AUTO_BP_L2, abs=1e-6)
+
+
+def test_freire_auto_reference_torus_and_period_doubling_from_branch_point(freire_auto_demo):
+    # AUTO's third run: the branch from that BP has TR, then PD
+    _, _, start, br = freire_auto_demo
+    bp = next(sp for sp in br.special_points if sp.kind == CYCLE_BRANCH_POINT)
+    new = cycles_from_branch_point(start.problem, bp, eps=0.01, side=1).run(
+        ContinuationSettings(ds=0.005, ds_max=0.02, max_points=20, p_min=-0.62, p_max=-0.5,
+                             event_tol=1e-10))
+    assert new.points[-1].p == pytest.approx(-0.62)
+    assert [sp.kind for sp in _events(new)] == [TORUS, PERIOD_DOUBLING]
+    for sp, nu, T in zip(_events(new), (AUTO_TR_NU, AUTO_PD_NU), (AUTO_TR_T, AUTO_PD_T),
+                         strict=True):
+        assert sp.point.p == pytest.approx(nu, abs=1e-6)
+        assert sp.point.extra["period"] == pytest.approx(T, abs=1e-5)

@@ -40,6 +40,14 @@ circuit"; ntst = 25, ncol = 4):
 - Limit point cycle  ``ν = -0.5844928``, period ``8.411855``;
 - Neimark-Sacker     ``ν = -0.5957506``, period ``8.861103``;
 - Period Doubling    ``ν = -0.6146817``, period ``9.256846``.
+
+For the symmetric system (``ε = 0``) with the AUTO demo's constants
+(:data:`FREIRE_AUTO_DEMO`), the reference output of AUTO-07p's demo test suite
+(file ``test/hyper.all`` of the AUTO-07p repository, section "Doing tor",
+NTST = 25, NCOL = 4, 6 significant digits) prints on the cycles from the Hopf
+point ``LP ν = -0.584335, T = 8.42647`` and ``BP ν = -0.587029,
+T = 8.68967`` (L2-norm 0.208647), and on the branch switched at that BP
+``TR ν = -0.591650, T = 8.79415`` and ``PD ν = -0.614955, T = 9.26630``.
 """
 
 from __future__ import annotations
@@ -79,6 +87,9 @@ def lure_adaptive_control(alpha: float = 1.2, beta: float = 1.0) -> FunctionMode
 
 
 FREIRE_PARAMS = ("nu", "beta", "gamma", "r", "a3", "b3", "eps")
+
+#: The constants of the AUTO-07p demo ``tor`` (``freire_circuit(eps=0, **FREIRE_AUTO_DEMO)``).
+FREIRE_AUTO_DEMO = {"a3": 0.328578, "b3": 0.933578}
 
 
 def freire_rhs(u: np.ndarray, q: np.ndarray) -> np.ndarray:
