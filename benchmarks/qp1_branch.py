@@ -43,6 +43,7 @@ from contfil.models.filament.cycles import FixedStepFlow
 
 ROOT = Path(__file__).resolve().parents[1]
 FIG = ROOT / "docs" / "figures"
+FD_REL = 2e-5
 
 
 def _c(z: complex) -> list[float]:
@@ -61,8 +62,12 @@ def pitchfork_point(name: str, model: FilamentModel, steps: int) -> tuple[Any, S
     sp = next(s for s in d["special"] if s["kind"] == CYCLE_BRANCH_POINT)
     p = float(sp["p"])
     fm = FixedStepFlow(model, steps)
+    # Central differences with h ≈ 1e-4 (fd_rel·(1 + |x|)): the 3-D flow is
+    # accurate to ~1e-11 (Broyden tolerance), so the default forward h ≈ 5e-7
+    # leaves ~5e-5 relative error in J v, which stalls Newton near the
+    # pitchfork at |r| ~ 1e-8; central h = 1e-4 gives ~1e-7 (measured).
     pb = PeriodicOrbitProblem(fm, model.param_names[0], np.array([p]), subspace="planar_xz",
-                              period_means=8)
+                              period_means=8, fd_rel=FD_REL, fd_central=True)
     x0 = np.asarray(sp["x"], dtype=float)
     pb.set_reference(x0[:-1], p)
     x, info = newton_hookstep(lambda z: pb.residual(z, p), x0,
@@ -84,10 +89,29 @@ def pitchfork_point(name: str, model: FilamentModel, steps: int) -> tuple[Any, S
     return pb, spt
 
 
-def run(name: str, steps: int, points: int, budget: float, eps: float) -> dict[str, Any]:
+def _trace_residuals() -> None:
+    """Print every full residual norm of the relative-periodic-orbit solves."""
+    from contfil.engine.shooting import RelativePeriodicOrbitProblem
+
+    orig = RelativePeriodicOrbitProblem.residual
+    t0 = time.perf_counter()
+
+    def traced(self: Any, x: Any, p: float) -> Any:
+        r = orig(self, x, p)
+        print(f"  [residual] |r| = {np.linalg.norm(r):.3e} p = {p:.6f} T = {x[self.dim]:.6g} "
+              f"theta = {x[self.dim + 1]:+.3e} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        return r
+
+    RelativePeriodicOrbitProblem.residual = traced  # type: ignore[method-assign]
+
+
+def run(name: str, steps: int, points: int, budget: float, eps: float,
+        verbose: bool = False) -> dict[str, Any]:
     t0 = time.perf_counter()
     model = FilamentModel(ROOT / "branches" / f"{name}.toml")
     pb, sp = pitchfork_point(name, model, steps)
+    if verbose:
+        _trace_residuals()
     start = cycles_leaving_subspace(pb, sp, eps=eps, side=1)
     rpo = start.problem
     print(f"[switch] first point p = {start.p0:.6f} (side {start.info['side']:+.0f}), "
@@ -135,8 +159,9 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=30)
     ap.add_argument("--budget", type=float, default=3600.0)
     ap.add_argument("--eps", type=float, default=0.02)
+    ap.add_argument("--trace", action="store_true", help="print every residual norm")
     a = ap.parse_args()
-    out = run(a.model, a.steps, a.points, a.budget, a.eps)
+    out = run(a.model, a.steps, a.points, a.budget, a.eps, a.trace)
     dst = FIG / f"qp1_{a.model}.json"
     dst.write_text(json.dumps(out, indent=1, default=lambda o: _c(o) if isinstance(o, complex)
                               else (o.tolist() if isinstance(o, np.ndarray) else float(o))))
