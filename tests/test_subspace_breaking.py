@@ -132,3 +132,27 @@ def test_switch_onto_the_branch_leaving_the_subspace():
             assert pt.n_unstable == 0  # supercritical: the tilted cycles are stable
         halves.append(np.sign(new.points[-1].u[2]))
     assert halves[0] == -halves[1]
+
+
+def test_switch_ignores_trivial_directions_in_the_critical_mode():
+    """Near μ = 1 the stored eigenvector can be dominated by a trivial direction
+    (the filament's beating pitchfork gives one parallel to L U to 1e-11); the
+    switch must seed along the part orthogonal to them."""
+    import copy
+
+    from contfil.engine.cycle_switching import cycles_leaving_subspace
+
+    m = tilted_plane_model()
+    pb = PeriodicOrbitProblem(m, "beta", steps=60, subspace="plane", nev=3)
+    x0 = np.array([np.sqrt(0.3), 0.0, 2 * np.pi])
+    s = ContinuationSettings(ds=0.06, ds_max=0.08, max_points=8, p_max=0.6, event_tol=1e-10)
+    sp = next(sp for sp in Continuation(pb, x0, 0.3, s).run().special_points
+              if sp.kind == CYCLE_BRANCH_POINT)
+    f = pb.trivial_directions(np.concatenate([pb.subspace.project(sp.point.u),
+                                              [sp.point.extra["period"]]]), sp.point.p)[0]
+    bad = copy.deepcopy(sp)
+    bad.data["v_re"] = sp.data["v_re"] + 1e3 * f / np.linalg.norm(f)
+    start = cycles_leaving_subspace(pb, bad, eps=0.1)
+    # the first point is on the tilted branch, not a time shift of the planar cycle
+    assert start.x0[2] ** 2 == pytest.approx(C - start.p0, abs=1e-7)
+    assert abs(start.x0[2]) > 0.05

@@ -446,9 +446,20 @@ def cycles_leaving_subspace(
     p_bp = float(sp.point.p)
     U = np.asarray(problem.subspace.embed(x_r[: problem.dim]), dtype=float)
     T = float(x_r[problem.dim])
-    v = side * _unit_real(sp.data["v_re"])
+    v = np.asarray(sp.data["v_re"], dtype=float)
     if v.size != U.size:
         raise ContfilError(f"critical eigenvector has {v.size} entries, the full state {U.size}")
+    # Near μ = 1 the Floquet eigenvector of the crossing multiplier is
+    # dominated by the trivial directions (f(U), L U): with a Jordan chain
+    # M v = v + c L U (a drifting pitchfork) it tends to L U as μ -> 1, and
+    # seeding along it only rotates the old orbit. The bifurcating direction
+    # is its part orthogonal to the trivial directions.
+    E = np.column_stack(problem.trivial_directions(x_r, p_bp))
+    Q, _ = np.linalg.qr(E)
+    w = v - Q @ (Q.T @ v)
+    if np.linalg.norm(w) <= 1e-8 * np.linalg.norm(v):
+        raise ContfilError("critical eigenvector lies in the trivial directions (f(U), L U)")
+    v = side * _unit_real(w)
     model = problem.model
     kw: dict[str, Any] = {"steps": problem.steps, "nev": problem.nev,
                           "floquet_tol": problem.floquet_tol,
