@@ -400,8 +400,9 @@ def cycles_from_branch_point(
         v = np.asarray(sp.data["v_re"], dtype=float)
         if problem.subspace is not None:
             raise ContfilError(
-                "symmetry breaking out of an invariant subspace: solve in the full model"
+                "symmetry breaking out of an invariant subspace: use cycles_leaving_subspace"
             )
+        v = _off_trivial(problem, x_bp, p_bp, v)
         dx = np.concatenate([v, np.zeros(n - v.size)])
     else:
         raise ContfilError("cycle branch point without tangent2 or eigenvector data")
@@ -412,6 +413,25 @@ def cycles_from_branch_point(
         "from": sp.kind, "p_star": p_bp, "eps": eps, "side": float(np.sign(p1 - p_bp)),
         "newton_iterations": info["iterations"], **{f"abe_{k}": v for k, v in abe.items()}})
 
+
+
+def _off_trivial(problem: PeriodicOrbitProblem, x: Array, p: float, v: Array) -> Array:
+    """``v`` without its part along the trivial directions ``f(U)``, ``L U`` (unit).
+
+    Near μ = 1 the Floquet eigenvector of a multiplier crossing +1 is
+    dominated by the trivial directions: with a Jordan-like coupling
+    ``M v = v + c e`` (e trivial) the exact eigenvector of ``μ`` is
+    ``v + c e/(μ - 1)``, which tends to ``e`` at the crossing (the
+    filament's beating pitchfork gives one parallel to ``L U`` to 1e-11).
+    Seeding along ``e`` only shifts the old orbit in time or angle; the
+    bifurcating direction is the part orthogonal to them.
+    """
+    E = np.column_stack(problem.trivial_directions(x, p))
+    Q, _ = np.linalg.qr(E)
+    w = v - Q @ (Q.T @ v)
+    if np.linalg.norm(w) <= 1e-8 * np.linalg.norm(v):
+        raise ContfilError("critical eigenvector lies in the trivial directions (f(U), L U)")
+    return _unit_real(w)
 
 
 def cycles_leaving_subspace(
@@ -449,17 +469,7 @@ def cycles_leaving_subspace(
     v = np.asarray(sp.data["v_re"], dtype=float)
     if v.size != U.size:
         raise ContfilError(f"critical eigenvector has {v.size} entries, the full state {U.size}")
-    # Near μ = 1 the Floquet eigenvector of the crossing multiplier is
-    # dominated by the trivial directions (f(U), L U): with a Jordan chain
-    # M v = v + c L U (a drifting pitchfork) it tends to L U as μ -> 1, and
-    # seeding along it only rotates the old orbit. The bifurcating direction
-    # is its part orthogonal to the trivial directions.
-    E = np.column_stack(problem.trivial_directions(x_r, p_bp))
-    Q, _ = np.linalg.qr(E)
-    w = v - Q @ (Q.T @ v)
-    if np.linalg.norm(w) <= 1e-8 * np.linalg.norm(v):
-        raise ContfilError("critical eigenvector lies in the trivial directions (f(U), L U)")
-    v = side * _unit_real(w)
+    v = side * _off_trivial(problem, x_r, p_bp, v)
     model = problem.model
     kw: dict[str, Any] = {"steps": problem.steps, "nev": problem.nev,
                           "floquet_tol": problem.floquet_tol,
