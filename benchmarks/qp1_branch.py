@@ -140,6 +140,10 @@ def run(name: str, steps: int, points: int, budget: float, eps: float,
         print(f"[qp1] p={pt.p:.6f} T={T:.6g} drift={th:+.5f} rate={th / T:+.4g} "
               f"n_unst={pt.n_unstable} |mu|max={np.max(np.abs(mu)) if mu.size else np.nan:.5f} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        # keep what is computed if the run is interrupted (minutes per point)
+        _save(name, {"model": name, "steps": steps, "pitchfork_p": float(sp.point.p),
+                     "first": start.info, "points": pts, "stop": "running or interrupted",
+                     "wall": time.perf_counter() - t0})
         if time.perf_counter() - t0 > budget:
             stop = "wall-time budget"
             break
@@ -152,6 +156,16 @@ def run(name: str, steps: int, points: int, budget: float, eps: float,
             "wall": time.perf_counter() - t0}
 
 
+def _save(name: str, out: dict[str, Any]) -> Path:
+    """Write ``docs/figures/qp1_<name>.json`` atomically (temporary file + rename)."""
+    dst = FIG / f"qp1_{name}.json"
+    tmp = dst.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(out, indent=1, default=lambda o: _c(o) if isinstance(o, complex)
+                              else (o.tolist() if isinstance(o, np.ndarray) else float(o))))
+    tmp.replace(dst)
+    return dst
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--model", default="tip_sf")
@@ -162,9 +176,7 @@ def main() -> None:
     ap.add_argument("--trace", action="store_true", help="print every residual norm")
     a = ap.parse_args()
     out = run(a.model, a.steps, a.points, a.budget, a.eps, a.trace)
-    dst = FIG / f"qp1_{a.model}.json"
-    dst.write_text(json.dumps(out, indent=1, default=lambda o: _c(o) if isinstance(o, complex)
-                              else (o.tolist() if isinstance(o, np.ndarray) else float(o))))
+    dst = _save(a.model, out)
     print(f"wrote {dst} ({out['wall']:.0f} s, stop: {out['stop']})")
 
 
