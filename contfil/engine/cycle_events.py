@@ -59,6 +59,17 @@ def _nontrivial(st: Stability) -> tuple[NDArray[np.complex128], NDArray[np.intp]
     return vals[idx], idx
 
 
+def _log_nearest_circle(c: NDArray) -> float:
+    """``log|μ|`` of the multiplier nearest the unit circle, multiplicatively
+    (``|μ| - 1`` would prefer 1e-3 over 2 and lose the crossing one); NaN if
+    there is none."""
+    if c.size == 0:
+        return float("nan")
+    with np.errstate(divide="ignore"):
+        lg = np.log(np.abs(c))
+    return float(lg[int(np.argmin(np.abs(lg)))])
+
+
 def _is_real(z: NDArray[np.complex128], tol: float) -> NDArray[np.bool_]:
     return np.abs(z.imag) <= tol * np.maximum(1.0, np.abs(z))
 
@@ -148,14 +159,7 @@ class CycleBranchPointEvent(BranchPointEvent):
         if self._dense(ctx0):
             return super().localiser(ctx0, ctx1, j)
 
-        def g(ctx: EventContext) -> float:
-            c = self._real(ctx)
-            if c.size == 0:
-                return float("nan")
-            lg = np.log(c.real)
-            return float(lg[int(np.argmin(np.abs(lg)))])
-
-        return g
+        return lambda ctx: _log_nearest_circle(self._real(ctx).real)
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         if self._dense(ctx):
@@ -196,18 +200,7 @@ class _MultiplierEvent(Event):
         return [0] if (v0[0] != v1[0] and v0[1] != v1[1]) else []
 
     def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
-        def g(ctx: EventContext) -> float:
-            c = self._candidates(ctx.stability)
-            if c.size == 0:
-                return float("nan")
-            # log|μ|: the multiplier nearest the circle in the multiplicative
-            # sense (|μ| - 1 would prefer 1e-3 over 2 and lose the crossing one)
-            with np.errstate(divide="ignore"):
-                lg = np.log(np.abs(c))
-            k = int(np.argmin(np.abs(lg)))
-            return float(lg[k])
-
-        return g
+        return lambda ctx: _log_nearest_circle(self._candidates(ctx.stability))
 
 
 class PeriodDoublingEvent(_MultiplierEvent):
@@ -360,14 +353,7 @@ class SubspaceBreakingEvent(Event):
         return [0] if (v0[0] != v1[0] and v0[1] != v1[1]) else []
 
     def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
-        def g(ctx: EventContext) -> float:
-            c, _, _ = self._cands(ctx)
-            if c.size == 0:
-                return float("nan")
-            lg = np.log(c)
-            return float(lg[int(np.argmin(np.abs(lg)))])
-
-        return g
+        return lambda ctx: _log_nearest_circle(self._cands(ctx)[0])
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         c, idx, st = self._cands(ctx)

@@ -101,28 +101,37 @@ def shift_invert_stability(
     op = LinearOperator(
         (n, n), matvec=lambda v: apply_inverse(np.asarray(v, float).ravel()), dtype=float
     )
-    try:
-        nu, V = eigs(op, k=k, which="LM", tol=tol, return_eigenvectors=True)
-    except ArpackNoConvergence as exc:
-        raise ConvergenceError(
-            f"shift-invert Arnoldi (n={n}, k={k}, sigma={s}) did not converge: {exc}"
-        ) from None
+    nu, V = _arnoldi_lm(op, n, k, tol, f"shift-invert Arnoldi (n={n}, k={k}, sigma={s})")
     lam = s + 1.0 / nu
     lam, V = sort_leading(lam, V)
-    res = float("nan")
-    if matvec is not None:
-        res = max(
-            float(
-                np.linalg.norm(matvec(V[:, j].real) + 1j * matvec(V[:, j].imag) - lam[j] * V[:, j])
-            )
-            for j in range(lam.size)
-        )
+    res = _eigen_residual(matvec, lam, V)
     return Stability(
         values=lam,
         kind="eigenvalues",
         vectors=V if vectors else None,
         residual=res,
         info={"method": "shift-invert", "sigma": s, "k": k},
+    )
+
+
+def _arnoldi_lm(op: LinearOperator, n: int, k: int, tol: float,
+                what: str) -> tuple[NDArray, NDArray]:
+    """The ``k`` largest-magnitude eigenpairs of ``op`` (ARPACK), or a
+    :class:`ConvergenceError` naming ``what``."""
+    try:
+        return eigs(op, k=k, which="LM", tol=tol, return_eigenvectors=True)
+    except ArpackNoConvergence as exc:
+        raise ConvergenceError(f"{what} did not converge: {exc}") from None
+
+
+def _eigen_residual(matvec: Callable[[Array], Array] | None, lam: NDArray,
+                    V: NDArray) -> float:
+    """``max_j |J v_j - λ_j v_j|`` for complex ``v_j`` with a real ``matvec`` (NaN without)."""
+    if matvec is None:
+        return float("nan")
+    return max(
+        float(np.linalg.norm(matvec(V[:, j].real) + 1j * matvec(V[:, j].imag) - lam[j] * V[:, j]))
+        for j in range(lam.size)
     )
 
 
@@ -220,25 +229,14 @@ def complex_shift_stability(
     op = LinearOperator(
         (n, n), matvec=lambda v: apply_inverse(np.asarray(v, complex).ravel()), dtype=complex
     )
-    try:
-        nu, V = eigs(op, k=k, which="LM", tol=tol, return_eigenvectors=True)
-    except ArpackNoConvergence as exc:
-        raise ConvergenceError(
-            f"complex shift-invert Arnoldi (n={n}, k={k}, sigma={sig}) did not converge: {exc}"
-        ) from None
+    nu, V = _arnoldi_lm(op, n, k, tol,
+                        f"complex shift-invert Arnoldi (n={n}, k={k}, sigma={sig})")
     lam = sig + 1.0 / nu
     # J is real: add the conjugates of the non-real eigenvalues.
     nonreal = np.abs(lam.imag) > 1e-9 * np.maximum(1.0, np.abs(lam))
     lam = np.concatenate([lam, np.conj(lam[nonreal])])
     V = np.concatenate([V, np.conj(V[:, nonreal])], axis=1)
-    res = float("nan")
-    if matvec is not None:
-        res = max(
-            float(
-                np.linalg.norm(matvec(V[:, j].real) + 1j * matvec(V[:, j].imag) - lam[j] * V[:, j])
-            )
-            for j in range(lam.size)
-        )
+    res = _eigen_residual(matvec, lam, V)
     lam, V = sort_leading(lam, V)
     return Stability(
         values=lam,
