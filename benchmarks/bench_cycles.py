@@ -26,10 +26,10 @@ import time
 
 import numpy as np
 
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.default_flow import RadauFlow
-from contfil.engine.hookstep import hookstep_corrector
-from contfil.engine.shooting import PeriodicOrbitProblem
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.flows.radau import RadauFlow
+from contfil.engine.linalg.hookstep import hookstep_corrector
+from contfil.engine.problems.shooting import PeriodicOrbitProblem
 from contfil.models.catalog.cycles_designed import cycle_state, designed_cycles, exact_multipliers
 from contfil.models.catalog.cycles_hopf import stuart_landau_with_modes
 
@@ -109,10 +109,10 @@ def bench_floquet(mode: str, steps: int) -> None:
 
 def bench_filament_whirling(points: int, f_max: float, shoot: bool) -> None:
     """Tip follower force, N = 20: upright -> double Hopf -> whirling (rotating wave)."""
-    from contfil.engine.cycle_switching import rotating_wave_from_double_hopf
-    from contfil.engine.equilibrium import EquilibriumProblem
-    from contfil.engine.newton import newton_dense
-    from contfil.engine.rotating_wave import RotatingWaveProblem, rotating_wave_by_shooting
+    from contfil.engine.linalg.newton import newton_dense
+    from contfil.engine.problems.equilibrium import EquilibriumProblem
+    from contfil.engine.problems.rotating_wave import RotatingWaveProblem, rotating_wave_by_shooting
+    from contfil.engine.switching.cycles import rotating_wave_from_double_hopf
     from contfil.models.filament.model import FilamentModel
 
     scene = {"name": "tip_ff", "geometry": {"N": 20, "dL_over_a": 2.2, "dimension": "3d"},
@@ -171,10 +171,10 @@ def bench_filament_beating(points: int) -> None:
     """Tip FF beating: standing wave from the double Hopf, solved in the planar
     subspace (19 unknowns + T), stability in the full 3-D model (57). Both run on
     the default Radau flow of ``rhs`` (the model's own stepper is bypassed)."""
-    from contfil.engine.cycle_switching import standing_wave_from_double_hopf
-    from contfil.engine.equilibrium import EquilibriumProblem
+    from contfil.engine.problems.equilibrium import EquilibriumProblem
+    from contfil.engine.switching.cycles import standing_wave_from_double_hopf
     from contfil.models.filament.model import FilamentModel
-    from contfil.models.protocol import InvariantSubspace, Symmetries
+    from contfil.protocol import InvariantSubspace, Symmetries
 
     scene = {"name": "tip_ff", "geometry": {"N": 20, "dL_over_a": 2.2, "dimension": "3d"},
              "elasticity": {"KB": 1.0, "KT": 1.0}, "hydrodynamics": {"type": "rpy", "eta": 1.0},

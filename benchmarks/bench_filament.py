@@ -36,7 +36,7 @@ from scipy.integrate import solve_ivp  # noqa: E402
 from scipy.optimize import brentq  # noqa: E402
 
 from contfil.models.filament import FilamentModel, Scene  # noqa: E402
-from contfil.models.filament.stepper import (  # noqa: E402
+from contfil.models.filament.integrators.bdf2 import (  # noqa: E402
     BDF2Stepper,
     flow,
     project_planar,

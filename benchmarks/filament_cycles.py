@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.cycle_events import subspace_breaking_multipliers
-from contfil.engine.rotating_wave import rotating_wave_by_shooting
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.events.cycles import subspace_breaking_multipliers
+from contfil.engine.problems.rotating_wave import rotating_wave_by_shooting
 from contfil.models.filament import FilamentModel
 from contfil.models.filament import stepper as fstepper
 from contfil.models.filament.cycles import (
@@ -132,7 +132,7 @@ def whirling_shooting(model: FilamentModel, wres: dict[str, Any], steps: int,
     params = np.array([q["p"]])
     out = rotating_wave_by_shooting(fm, u, q["omega"], params, steps=steps, tol=1e-9, nev=8)
     st = out["stability"]
-    from contfil.engine.rotating_wave import RotatingWaveProblem
+    from contfil.engine.problems.rotating_wave import RotatingWaveProblem
 
     pb = RotatingWaveProblem(model, model.param_names[0], params)
     xs = np.concatenate([u, [q["omega"]]])
@@ -251,8 +251,8 @@ def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick
 def dt_study(model: FilamentModel, sp: dict[str, Any],
              steps_list: list[int]) -> list[dict[str, Any]]:
     """Re-solve the pitchfork orbit at fixed p with other step counts; out-of-plane multiplier."""
-    from contfil.engine.hookstep import newton_hookstep
-    from contfil.engine.shooting import PeriodicOrbitProblem
+    from contfil.engine.linalg.hookstep import newton_hookstep
+    from contfil.engine.problems.shooting import PeriodicOrbitProblem
 
     out = []
     x0 = np.asarray(sp["x"])

@@ -8,7 +8,7 @@ orbit* ``exp(θL) φ_T(u) = u`` — periodic in a frame turning by ``θ`` per
 period, quasiperiodic in the lab. This script starts it from the stored
 beating pitchfork (``docs/figures/filament_<model>_beating.json``, written
 by ``benchmarks/filament_cycles.py``) with the engine's
-:func:`~contfil.engine.cycle_switching.cycles_leaving_subspace` and
+:func:`~contfil.engine.switching.cycles.cycles_leaving_subspace` and
 continues it with pseudo-arclength, printing per point the actuation, the
 period ``T``, the drift ``θ``, the lab-frame rotation rate ``θ/T``, the
 Floquet multipliers and the cost. If the picture of the paper holds, the
@@ -34,10 +34,10 @@ from typing import Any
 import numpy as np
 
 from contfil.engine.branch import CYCLE_BRANCH_POINT, Point, SpecialPoint
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.cycle_events import subspace_breaking_multipliers
-from contfil.engine.cycle_switching import cycles_leaving_subspace
-from contfil.engine.shooting import PeriodicOrbitProblem
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.events.cycles import subspace_breaking_multipliers
+from contfil.engine.problems.shooting import PeriodicOrbitProblem
+from contfil.engine.switching.cycles import cycles_leaving_subspace
 from contfil.models.filament import FilamentModel
 from contfil.models.filament.cycles import FixedStepFlow
 
@@ -52,7 +52,7 @@ def _c(z: complex) -> list[float]:
 
 def pitchfork_point(name: str, model: FilamentModel, steps: int) -> tuple[Any, SpecialPoint]:
     """The stored beating pitchfork, re-solved at its parameter, as a SpecialPoint."""
-    from contfil.engine.hookstep import newton_hookstep
+    from contfil.engine.linalg.hookstep import newton_hookstep
 
     src = FIG / f"filament_{name}_beating.json"
     if not src.exists():
@@ -91,7 +91,7 @@ def pitchfork_point(name: str, model: FilamentModel, steps: int) -> tuple[Any, S
 
 def _trace_residuals() -> None:
     """Print every full residual norm of the relative-periodic-orbit solves."""
-    from contfil.engine.shooting import RelativePeriodicOrbitProblem
+    from contfil.engine.problems.shooting import RelativePeriodicOrbitProblem
 
     orig = RelativePeriodicOrbitProblem.residual
     t0 = time.perf_counter()

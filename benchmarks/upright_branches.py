@@ -47,7 +47,7 @@ from contfil.engine import (
     NodeFocusEvent,
 )
 from contfil.engine.branch import DOUBLE_HOPF, HOPF
-from contfil.engine.switching import hopf_normal_form
+from contfil.engine.switching.equilibria import hopf_normal_form
 from contfil.models.filament.model import FilamentModel
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -33,8 +33,8 @@ from upright_branches import DP_MAX, P_MAX, ROOT  # noqa: E402
 
 from contfil.engine import Continuation, ContinuationSettings, EquilibriumProblem, hopf_normal_form
 from contfil.engine.branch import DOUBLE_HOPF
+from contfil.models.filament.integrators.bdf2 import BDF2Stepper
 from contfil.models.filament.model import FilamentModel
-from contfil.models.filament.stepper import BDF2Stepper
 
 
 def main() -> None:

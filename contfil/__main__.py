@@ -1,7 +1,7 @@
-"""``python -m contfil`` runs the command line (see :mod:`contfil.cli`)."""
+"""``python -m contfil`` runs the command line (see :mod:`contfil.app.cli`)."""
 
 import sys
 
-from contfil.cli import main
+from contfil.app.cli import main
 
 sys.exit(main())

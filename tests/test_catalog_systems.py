@@ -17,7 +17,7 @@ from contfil.models.catalog import (
     transcritical,
     z2_pitchfork,
 )
-from contfil.models.protocol import Model
+from contfil.protocol import Model
 
 
 def _fd_jac(f, u, p, h=1e-6):

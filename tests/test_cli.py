@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from matplotlib.image import imread
 
-from contfil.cli import main
+from contfil.app.cli import main
 from contfil.graph.branch_graph import BranchGraph
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from contfil.engine.branch import CYCLE_BRANCH_POINT, CYCLE_FOLD, PERIOD_DOUBLING, TORUS
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.cycle_switching import cycles_from_branch_point, cycles_from_period_doubling
-from contfil.engine.shooting import PeriodicOrbitProblem
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.problems.shooting import PeriodicOrbitProblem
+from contfil.engine.switching.cycles import cycles_from_branch_point, cycles_from_period_doubling
 from contfil.models.catalog.cycles_designed import cycle_state, designed_cycles, exact_multipliers
 
 
@@ -89,7 +89,7 @@ def test_period_doubling_switching(run):
 def test_matrix_free_branch_point_and_fold_told_apart():
     # Large models run matrix-free: the branch point test then uses the multipliers
     # (a real one crosses +1 while τ_p keeps its sign); the fold flips τ_p.
-    from contfil.engine.hookstep import hookstep_corrector
+    from contfil.engine.linalg.hookstep import hookstep_corrector
 
     m = designed_cycles()
     pb = PeriodicOrbitProblem(m, "p", steps=40, dense_threshold=0)

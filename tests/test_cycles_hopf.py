@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from contfil.engine.branch import CYCLE_FOLD, HOPF, PERIODIC_ORBIT
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.cycle_switching import cycles_from_hopf
-from contfil.engine.equilibrium import EquilibriumProblem
-from contfil.engine.hookstep import hookstep_corrector
-from contfil.engine.shooting import PeriodicOrbitProblem
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.linalg.hookstep import hookstep_corrector
+from contfil.engine.problems.equilibrium import EquilibriumProblem
+from contfil.engine.problems.shooting import PeriodicOrbitProblem
+from contfil.engine.switching.cycles import cycles_from_hopf
 from contfil.models.catalog.cycles_hopf import (
     exact_cycle,
     stuart_landau,
@@ -84,8 +84,8 @@ def test_matrix_free_shooting_with_hookstep_corrector_matches_dense():
 def test_shooting_on_a_models_own_stepper_by_finite_differences():
     # A model that brings a fixed-step flow and nothing else: Jacobian-vector
     # products are finite differences of the flow (one flow evaluation each).
-    from contfil.engine.default_flow import RadauFlow
-    from contfil.engine.hookstep import newton_hookstep
+    from contfil.engine.flows.radau import RadauFlow
+    from contfil.engine.linalg.hookstep import newton_hookstep
 
     base = stuart_landau(mu=0.5, b=0.3)
     rf = RadauFlow(base.rhs, base.jacobian, steps=50)
@@ -127,7 +127,7 @@ def test_period_means_of_observables():
 
 
 def test_central_differences_sharpen_stepper_multipliers():
-    from contfil.engine.default_flow import RadauFlow
+    from contfil.engine.flows.radau import RadauFlow
 
     base = stuart_landau(mu=0.5, b=0.3)
     rf = RadauFlow(base.rhs, base.jacobian, steps=50)

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from contfil.engine.branch import DOUBLE_HOPF, RELATIVE_PERIODIC_ORBIT, ROTATING_WAVE
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.cycle_switching import (
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.problems.equilibrium import EquilibriumProblem
+from contfil.engine.problems.rotating_wave import rotating_wave_by_shooting
+from contfil.engine.switching.cycles import (
     rotating_wave_from_double_hopf,
     standing_wave_from_double_hopf,
 )
-from contfil.engine.equilibrium import EquilibriumProblem
-from contfil.engine.rotating_wave import rotating_wave_by_shooting
 from contfil.models.catalog.cycles_o2 import exact_standing, exact_travelling, o2_hopf
 
 P_TW = dict(mu=-0.1, omega=1.0, ar=-1.0, ai=0.3, br=-2.0, bi=0.5)  # travelling waves stable

@@ -32,9 +32,9 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import root
 
 from contfil.engine.branch import CYCLE_BRANCH_POINT, CYCLE_FOLD, HOPF, PERIOD_DOUBLING, TORUS
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.cycle_switching import cycles_from_branch_point, cycles_from_hopf
-from contfil.engine.equilibrium import EquilibriumProblem
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.problems.equilibrium import EquilibriumProblem
+from contfil.engine.switching.cycles import cycles_from_branch_point, cycles_from_hopf
 from contfil.models.catalog.cycles_published import (
     FREIRE_AUTO_DEMO,
     freire_circuit,

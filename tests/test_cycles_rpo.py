@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from contfil.engine.branch import RELATIVE_PERIODIC_ORBIT
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.hookstep import newton_hookstep
-from contfil.engine.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.linalg.hookstep import newton_hookstep
+from contfil.engine.problems.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
 from contfil.errors import SpecError
 from contfil.models.catalog.cycles_hopf import stuart_landau, two_oscillators
 

@@ -17,7 +17,7 @@ from contfil.engine import (
 from contfil.engine.branch import BRANCH_POINT, ENDPOINT, FOLD, HOPF, Branch
 from contfil.errors import ConvergenceError, NonFiniteError
 from contfil.models.catalog import bratu, pitchfork, saddle_node, transcritical
-from contfil.models.protocol import FunctionModel
+from contfil.protocol import FunctionModel
 
 
 def _kinds(br: Branch) -> list[str]:

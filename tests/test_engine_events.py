@@ -16,7 +16,7 @@ from contfil.engine import (
     continue_branch,
 )
 from contfil.engine.branch import DOUBLE_HOPF, ENDPOINT, HOPF
-from contfil.engine.eigen import dense_stability, inverse_from_dense, shift_invert_stability
+from contfil.engine.linalg.eigen import dense_stability, inverse_from_dense, shift_invert_stability
 from contfil.models.catalog import brusselator, hopf_2d, o2_hopf, pitchfork
 
 

@@ -19,7 +19,7 @@ from contfil.engine import (
     continue_branch,
 )
 from contfil.engine.branch import BRANCH_POINT, FOLD, HOPF
-from contfil.engine.eigen import (
+from contfil.engine.linalg.eigen import (
     complex_shift_stability,
     inverse_from_dense,
     merge_stability,

@@ -7,7 +7,7 @@ import pytest
 
 from contfil.engine import ContinuationSettings, EquilibriumProblem, continue_branch
 from contfil.engine.branch import BRANCH_POINT, DOUBLE_HOPF, ENDPOINT, FOLD, HOPF
-from contfil.engine.switching import (
+from contfil.engine.switching.equilibria import (
     branch_point_tangents,
     hopf_data,
     o2_hopf_modes,

@@ -7,14 +7,16 @@ import re
 import numpy as np
 import pytest
 
+from contfil.app import study as ea
 from contfil.engine.branch import BRANCH_POINT, EQUILIBRIUM
-from contfil.engine.continuation import ContinuationSettings
-from contfil.engine.equilibrium import EquilibriumProblem
-from contfil.graph import engine_adapter as ea
-from contfil.graph.explorer import Explorer, ExplorerSettings, Progress
-from contfil.graph.seeds import Seed, SwitcherRegistry, as_seed
+from contfil.engine.continuation.driver import ContinuationSettings
+from contfil.engine.problems.equilibrium import EquilibriumProblem
+from contfil.explore import continuer as eco
+from contfil.explore import switchers as esw
+from contfil.explore.explorer import Explorer, ExplorerSettings, Progress
+from contfil.explore.seeds import Seed, SwitcherRegistry, as_seed
 from contfil.models.catalog import pitchfork, z2_pitchfork
-from contfil.models.protocol import Symmetries
+from contfil.protocol import Symmetries
 
 
 def _set(text: str, key: str, value: str) -> str:
@@ -32,12 +34,12 @@ def _explore(entry, symmetries, both: bool, depth: int = 2, calls: list | None =
     def bp(sp, branch, pb):
         if calls is not None:
             calls.append(sp.point.p)
-        return ea.branch_point_seeds(sp, branch, pb)
+        return esw.branch_point_seeds(sp, branch, pb)
 
     reg.register(BRANCH_POINT, bp)
     settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=1.0,
                                     newton_tol=1e-12)
-    ex = Explorer(root, ea.engine_continuer,
+    ex = Explorer(root, eco.engine_continuer,
                   ExplorerSettings(depth=depth, both_directions=both, p_range=(-1.0, 1.0)),
                   reg, settings, symmetries=symmetries, progress=Progress(enabled=False))
     return ex, ex.run()
@@ -115,7 +117,7 @@ def test_as_seed_accepts_tuples() -> None:
 
 def test_hopf_cycles_on_exact_circle() -> None:
     """Hopf normal form: cycles r = sqrt(mu), period 2 pi / omega exactly."""
-    from contfil.graph.engine_adapter import default_switchers
+    from contfil.explore.switchers import default_switchers
     from contfil.models.catalog import hopf_2d
 
     e = hopf_2d(omega=2.0)
@@ -123,7 +125,7 @@ def test_hopf_cycles_on_exact_circle() -> None:
     root = Seed(problem, e.u0, e.p0, direction=1)
     settings = ContinuationSettings(ds=0.1, ds_max=0.2, p_min=-1.0, p_max=0.5,
                                     newton_tol=1e-10)
-    ex = Explorer(root, ea.engine_continuer,
+    ex = Explorer(root, eco.engine_continuer,
                   ExplorerSettings(depth=1, p_range=(-1.0, 0.5), max_points=6),
                   default_switchers(), settings, progress=Progress(enabled=False))
     g = ex.run()
@@ -144,8 +146,8 @@ def test_filament_upright_double_hopf_whirling(tmp_path) -> None:
     whirling (a rotating wave, stable at birth), through the whole study layer."""
     from pathlib import Path
 
-    from contfil.graph.study import run_study
-    from contfil.io.spec import loads_spec
+    from contfil.app.spec import loads_spec
+    from contfil.app.study import run_study
 
     text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
     text = _set(_set(text, "max_points", "16"), "range", "[0.0, 70.0]")
@@ -181,13 +183,13 @@ def test_filament_upright_double_hopf_whirling(tmp_path) -> None:
 def test_o2_double_hopf_rotating_wave_only_when_asked() -> None:
     """O(2) Hopf normal form (a = -1, b = -2): the rotating wave |z1|^2 = mu,
     omega_RW = omega; the standing wave is skipped by request and marked."""
-    from contfil.graph.engine_adapter import default_switchers
+    from contfil.explore.switchers import default_switchers
     from contfil.models.catalog import o2_hopf
 
     e = o2_hopf(omega=1.5)
     problem = EquilibriumProblem(e.model, e.param)
     settings = ContinuationSettings(ds=0.1, ds_max=0.2, p_min=-1.0, p_max=0.6)
-    ex = Explorer(Seed(problem, e.u0, e.p0), ea.engine_continuer,
+    ex = Explorer(Seed(problem, e.u0, e.p0), eco.engine_continuer,
                   ExplorerSettings(depth=1, p_range=(-1.0, 0.6), max_points=6,
                                    branch_kinds=("equilibrium", "rotating_wave")),
                   default_switchers(branch_kinds=("equilibrium", "rotating_wave")), settings,
@@ -228,9 +230,9 @@ def test_fold_is_passed_and_kept_as_unswitchable_node() -> None:
     e = saddle_node()
     problem = EquilibriumProblem(e.model, e.param)
     settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=0.5)
-    ex = Explorer(Seed(problem, e.u0, e.p0), ea.engine_continuer,
+    ex = Explorer(Seed(problem, e.u0, e.p0), eco.engine_continuer,
                   ExplorerSettings(depth=2, p_range=(-1.0, 0.5)),
-                  ea.default_switchers(), settings, progress=Progress(enabled=False))
+                  esw.default_switchers(), settings, progress=Progress(enabled=False))
     g = ex.run()
     assert len(g) == 1
     (sid,) = g.special_points
@@ -251,13 +253,13 @@ def test_root_direction_and_both_directions() -> None:
     settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=1.0)
     for seed, lo_first in [(Seed(problem, np.zeros(2), 0.5, direction=-1), True),
                            (Seed(problem, np.zeros(2), 0.5, direction=1), False)]:
-        g = Explorer(seed, ea.engine_continuer, ExplorerSettings(depth=0, p_range=(-1, 1)),
+        g = Explorer(seed, eco.engine_continuer, ExplorerSettings(depth=0, p_range=(-1, 1)),
                      SwitcherRegistry(), settings, progress=Progress(enabled=False)).run()
         ps = g.branch("B0").parameter_values()
         assert ps[0] == 0.5 and (ps[-1] == -1.0 if lo_first else ps[-1] == 1.0)
     # Both directions: one branch covering the whole range, in increasing order.
     seed = Seed(problem, np.zeros(2), 0.5, direction=1, both_directions=True)
-    g = Explorer(seed, ea.engine_continuer, ExplorerSettings(depth=0, p_range=(-1, 1)),
+    g = Explorer(seed, eco.engine_continuer, ExplorerSettings(depth=0, p_range=(-1, 1)),
                  SwitcherRegistry(), settings, progress=Progress(enabled=False)).run()
     ps = g.branch("B0").parameter_values()
     assert ps[0] == -1.0 and ps[-1] == 1.0 and np.all(np.diff(ps) > 0)
@@ -272,9 +274,9 @@ def test_restart_from_any_stored_point() -> None:
     e = z2_pitchfork()
     _, g = _explore(e, None, both=True)
     problem = EquilibriumProblem(e.model, e.param)
-    seed = ea.restart_seed(g, "B1", 5, problem)
+    seed = eco.restart_seed(g, "B1", 5, problem)
     settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=1.0)
-    steps = list(ea.engine_continuer(seed, 1, settings, None))[:4]
+    steps = list(eco.engine_continuer(seed, 1, settings, None))[:4]
     ref = np.atleast_1d(e.exact["branch"](steps[-1].point.p))
     assert steps[0].point.p == g.point("B1", 5).p
     assert np.allclose(np.abs(steps[-1].point.u), np.abs(ref), atol=1e-9)
@@ -287,8 +289,8 @@ def test_mirror_whirling_waves_are_one_state_up_to_symmetry() -> None:
     from pathlib import Path
 
     from contfil.engine.branch import Branch
-    from contfil.engine.continuation import Continuation
-    from contfil.engine.cycle_switching import rotating_wave_from_double_hopf
+    from contfil.engine.continuation.driver import Continuation
+    from contfil.engine.switching.cycles import rotating_wave_from_double_hopf
     from contfil.graph.identity import same_branch
     from contfil.models.filament.model import FilamentModel
     from contfil.models.filament.scene import load_scene
@@ -318,9 +320,9 @@ def test_whirling_branch_agrees_with_time_integration(tmp_path) -> None:
     same f (BDF2 stepper) settle on the same bending energy and rotation speed."""
     from pathlib import Path
 
-    from contfil.graph.study import run_study
-    from contfil.io.spec import loads_spec
-    from contfil.models.filament.stepper import trajectory
+    from contfil.app.spec import loads_spec
+    from contfil.app.study import run_study
+    from contfil.models.filament.integrators.bdf2 import trajectory
 
     f = 45.0
     text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
@@ -362,8 +364,8 @@ def test_filament_beating_born_unstable_at_double_hopf(tmp_path) -> None:
     birth, as the paper reports (small N = 6 filament, a few points)."""
     from pathlib import Path
 
-    from contfil.graph.study import run_study
-    from contfil.io.spec import loads_spec
+    from contfil.app.spec import loads_spec
+    from contfil.app.study import run_study
 
     text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
     text = _set(_set(text, "max_points", "5"), "range", "[30.0, 45.0]")

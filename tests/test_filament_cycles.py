@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from contfil.engine.cycle_events import subspace_fraction
+from contfil.engine.events.cycles import subspace_fraction
 from contfil.models.filament import FilamentModel
 from contfil.models.filament.cycles import (
     FixedStepFlow,

@@ -12,7 +12,7 @@ from scipy.linalg import expm
 from contfil.errors import NonFiniteError
 from contfil.models.filament import FilamentModel, load_scene
 from contfil.models.filament.kernels import rpy_mobility, squirmer_velocity
-from contfil.models.protocol import Model
+from contfil.protocol import Model
 
 BR = Path(__file__).resolve().parents[1] / "branches"
 MODELS = ["tip_ff", "dis_ff", "tip_sf", "dis_sf"]
@@ -246,7 +246,7 @@ def test_flow_hook_delegates_to_stepper() -> None:
     import importlib.util
 
     m = FilamentModel(load_scene(BR / "tip_ff.toml"))
-    has = importlib.util.find_spec("contfil.models.filament.stepper") is not None
+    has = importlib.util.find_spec("contfil.models.filament.integrators.bdf2") is not None
     assert hasattr(m, "flow") == has
 
 

@@ -15,9 +15,7 @@ from scipy.integrate import solve_ivp
 
 from contfil.errors import ConvergenceError, NonFiniteError
 from contfil.models.filament import FilamentModel, Scene
-from contfil.models.filament.broyden import broyden_solve
-from contfil.models.filament.kernels import bdf2_solver as K
-from contfil.models.filament.stepper import (
+from contfil.models.filament.integrators.bdf2 import (
     BDF2Stepper,
     _maps,
     attach_flow,
@@ -27,6 +25,8 @@ from contfil.models.filament.stepper import (
     rotate_state_z,
     trajectory,
 )
+from contfil.models.filament.kernels import bdf2_solver as K
+from contfil.models.filament.kernels.broyden import broyden_solve
 
 N = 20
 

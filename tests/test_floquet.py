@@ -4,9 +4,9 @@ default Radau flow (order 5, exact tangent); trivial multipliers by eigenvectors
 import numpy as np
 import pytest
 
-from contfil.engine.default_flow import FlowOps, RadauFlow
-from contfil.engine.floquet import arnoldi_eigs, flag_trivial, floquet_multipliers
-from contfil.engine.shooting import PeriodicOrbitProblem
+from contfil.engine.flows.radau import FlowOps, RadauFlow
+from contfil.engine.linalg.floquet import arnoldi_eigs, flag_trivial, floquet_multipliers
+from contfil.engine.problems.shooting import PeriodicOrbitProblem
 from contfil.models.catalog.cycles_designed import (
     cycle_state,
     designed_cycles,
@@ -156,7 +156,7 @@ def test_deflated_eigenvectors_are_eigenvectors_of_the_full_monodromy():
     # Standing wave of the O(2) normal form with amplitude-dependent frequencies:
     # the amplitude modes couple into the phase (trivial) directions, so the
     # compressed eigenvectors must be lifted back correctly.
-    from contfil.engine.shooting import RelativePeriodicOrbitProblem
+    from contfil.engine.problems.shooting import RelativePeriodicOrbitProblem
     from contfil.models.catalog.cycles_o2 import exact_standing, o2_hopf
 
     P = dict(mu=0.2, omega=1.0, ar=-2.0, ai=0.3, br=-1.0, bi=0.5)

@@ -20,7 +20,8 @@ from contfil.engine.branch import (
 )
 from contfil.graph.branch_graph import BranchGraph, stability_runs
 from contfil.graph.identity import same_branch, same_special_point
-from contfil.models.protocol import ContinuousSymmetry, Symmetries
+from contfil.protocol import ContinuousSymmetry, Symmetries
+from contfil.store.run_store import save_graph_graphml, save_graph_json
 
 
 def _eq_branch(us: np.ndarray, ps: np.ndarray, n_unstable=None, kind=EQUILIBRIUM) -> Branch:
@@ -189,7 +190,7 @@ def _assert_same(g: BranchGraph, h: BranchGraph) -> None:
 
 def test_json_round_trip(tmp_path) -> None:
     g, *_ = _two_branch_graph()
-    path = g.save_json(tmp_path / "g.json")
+    path = save_graph_json(g, tmp_path / "g.json")
     data = json.loads(path.read_text())
     assert {"nodes", "edges"} <= set(data)
     # Plain networkx reads it back to an equal graph (structure and attributes).
@@ -200,7 +201,7 @@ def test_json_round_trip(tmp_path) -> None:
 
 def test_graphml_round_trip(tmp_path) -> None:
     g, *_ = _two_branch_graph()
-    path = g.save_graphml(tmp_path / "g.graphml")
+    path = save_graph_graphml(g, tmp_path / "g.graphml")
     G = nx.read_graphml(path)
     # The reader adds its own (empty) default-attribute dicts; nothing else differs.
     assert G.graph.pop("node_default") == {} and G.graph.pop("edge_default") == {}

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from contfil.engine.hookstep import (
+from contfil.engine.linalg.hookstep import (
     arnoldi_gmres,
     hookstep_corrector,
     hookstep_from_hessenberg,
@@ -99,7 +99,7 @@ def test_trial_step_outside_domain_shrinks_instead_of_failing() -> None:
 
 
 def test_shooting_refuses_non_positive_period() -> None:
-    from contfil.engine.shooting import PeriodicOrbitProblem
+    from contfil.engine.problems.shooting import PeriodicOrbitProblem
     from contfil.errors import DomainError
     from contfil.models.catalog.cycles_hopf import stuart_landau
 

@@ -8,12 +8,9 @@ import pytest
 
 from contfil.engine.branch import BRANCH_POINT, Branch, Point, SpecialPoint
 from contfil.graph.branch_graph import BranchGraph
-from contfil.plot.diagrams import (
-    bifurcation_diagram,
-    eigenvalue_plot,
-    filament_snapshots,
-    save_run_plots,
-)
+from contfil.models.filament.views import draw_state as _draw_state
+from contfil.models.filament.views import filament_snapshots
+from contfil.plot.diagrams import bifurcation_diagram, eigenvalue_plot, save_run_plots
 
 
 def _graph() -> BranchGraph:
@@ -113,8 +110,8 @@ def test_eigenvalue_plot_cycles_as_floquet_exponents() -> None:
 
 
 def test_branch_snapshots_of_rotating_wave_is_rigid_rotation() -> None:
-    from contfil.models.protocol import ContinuousSymmetry, Symmetries
-    from contfil.plot.diagrams import branch_snapshots
+    from contfil.plot.shapes import branch_snapshots
+    from contfil.protocol import ContinuousSymmetry, Symmetries
 
     Lz = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
 
@@ -122,6 +119,7 @@ def test_branch_snapshots_of_rotating_wave_is_rigid_rotation() -> None:
         """State = 3 points of a bent rod; centreline = base + those points."""
 
         symmetries = Symmetries(continuous=[ContinuousSymmetry("rot", np.kron(np.eye(3), Lz))])
+        draw_state = _draw_state
 
         def centreline(self, u):
             return np.vstack([np.zeros(3), np.asarray(u).reshape(3, 3)])

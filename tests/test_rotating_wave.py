@@ -4,13 +4,13 @@ the trivial eigenvalue found by its eigenvector, and the shooting cross-check.""
 import numpy as np
 import pytest
 
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.hookstep import newton_hookstep
-from contfil.engine.rotating_wave import RotatingWaveProblem, rotating_wave_by_shooting
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.linalg.hookstep import newton_hookstep
+from contfil.engine.problems.rotating_wave import RotatingWaveProblem, rotating_wave_by_shooting
 from contfil.errors import SpecError
 from contfil.models.catalog.cycles_hopf import J2, exact_cycle, stuart_landau
 from contfil.models.catalog.cycles_o2 import exact_travelling, o2_hopf
-from contfil.models.protocol import ContinuousSymmetry, FunctionModel, Symmetries
+from contfil.protocol import ContinuousSymmetry, FunctionModel, Symmetries
 
 O2P = dict(mu=0.2, omega=1.0, ar=-1.0, ai=0.3, br=-2.0, bi=0.5)
 
@@ -112,7 +112,7 @@ def test_hopf_of_comoving_field_is_reported_as_torus() -> None:
     stability at mu = 1 exactly through a torus bifurcation (second
     frequency 2 in the co-moving frame), not a Hopf point."""
     from contfil.engine.branch import HOPF, TORUS
-    from contfil.engine.continuation import ContinuationSettings, continue_branch
+    from contfil.engine.continuation.driver import ContinuationSettings, continue_branch
     from contfil.protocol import ContinuousSymmetry, FunctionModel, Symmetries
 
     def f(u: np.ndarray, p: np.ndarray) -> np.ndarray:

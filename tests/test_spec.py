@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
+from contfil.app.spec import KINDS, SCHEMA, load_spec, loads_spec
 from contfil.errors import SpecError
-from contfil.io.spec import KINDS, SCHEMA, load_spec, loads_spec
 
 ROOT = Path(__file__).resolve().parents[1]
 

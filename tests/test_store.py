@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from contfil.app.spec import load_spec
+from contfil.app.study import run_study
 from contfil.errors import ContfilError
-from contfil.graph.explorer import Progress
-from contfil.graph.study import run_study
-from contfil.io.atomic import RecordLog, atomic_write_json, decode_record, encode_record
-from contfil.io.spec import load_spec
-from contfil.io.store import RunStore, parse_task_records
+from contfil.explore.explorer import Progress
+from contfil.store.atomic import RecordLog, atomic_write_json, decode_record, encode_record
+from contfil.store.run_store import RunStore, parse_task_records
 
 SPEC = """
 [model]
@@ -189,8 +189,8 @@ def test_kill_inside_rotating_wave_branch_then_resume(tmp_path: Path) -> None:
 
 def _counting_switchers(calls: list[str]):
     """The engine's switchers (rotating waves only), recording each call."""
-    from contfil.graph.engine_adapter import default_switchers
-    from contfil.graph.seeds import SwitcherRegistry
+    from contfil.explore.seeds import SwitcherRegistry
+    from contfil.explore.switchers import default_switchers
 
     base = default_switchers(branch_kinds=("equilibrium", "rotating_wave"))
 
@@ -244,7 +244,7 @@ def test_injected_kills_then_resume_equal_uninterrupted(reference, tmp_path: Pat
     p.wait(timeout=120)
     assert p.returncode == -signal.SIGKILL
     # An interrupted run can be inspected.
-    from contfil.cli import main
+    from contfil.app.cli import main
 
     assert main(["show", str(run)]) == 0
     out = capsys.readouterr().out

@@ -17,14 +17,14 @@ import numpy as np
 import pytest
 
 from contfil.engine.branch import CYCLE_BRANCH_POINT
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.cycle_events import (
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.events.cycles import (
     SubspaceBreakingEvent,
     subspace_breaking_multipliers,
     subspace_fraction,
 )
-from contfil.engine.problem_base import Stability
-from contfil.engine.shooting import PeriodicOrbitProblem
+from contfil.engine.problems.base import Stability
+from contfil.engine.problems.shooting import PeriodicOrbitProblem
 from contfil.protocol import FunctionModel, InvariantSubspace, Symmetries
 
 C = 0.5
@@ -106,7 +106,7 @@ def test_out_of_subspace_pitchfork_located_at_exact_value(dense_threshold):
 
 
 def test_switch_onto_the_branch_leaving_the_subspace():
-    from contfil.engine.cycle_switching import cycles_leaving_subspace
+    from contfil.engine.switching.cycles import cycles_leaving_subspace
 
     m = tilted_plane_model()
     pb = PeriodicOrbitProblem(m, "beta", steps=60, subspace="plane", nev=3)
@@ -140,7 +140,7 @@ def test_switch_ignores_trivial_directions_in_the_critical_mode():
     switch must seed along the part orthogonal to them."""
     import copy
 
-    from contfil.engine.cycle_switching import cycles_leaving_subspace
+    from contfil.engine.switching.cycles import cycles_leaving_subspace
 
     m = tilted_plane_model()
     pb = PeriodicOrbitProblem(m, "beta", steps=60, subspace="plane", nev=3)

@@ -10,10 +10,8 @@ Public API::
 """
 
 from contfil.engine.branch import Branch, Point, SpecialPoint
-from contfil.engine.continuation import Continuation, ContinuationSettings, continue_branch
-from contfil.engine.eigen import dense_stability, shift_invert_stability
-from contfil.engine.equilibrium import EquilibriumProblem
-from contfil.engine.events import (
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings, continue_branch
+from contfil.engine.events.standard import (
     BranchPointEvent,
     Event,
     EventContext,
@@ -22,9 +20,11 @@ from contfil.engine.events import (
     NodeFocusEvent,
     default_events,
 )
-from contfil.engine.newton import NewtonInfo, newton_dense, newton_krylov
-from contfil.engine.problem_base import Problem, Stability
-from contfil.engine.switching import (
+from contfil.engine.linalg.eigen import dense_stability, shift_invert_stability
+from contfil.engine.linalg.newton import NewtonInfo, newton_dense, newton_krylov
+from contfil.engine.problems.base import Problem, Stability
+from contfil.engine.problems.equilibrium import EquilibriumProblem
+from contfil.engine.switching.equilibria import (
     branch_point_tangents,
     hopf_data,
     hopf_normal_form,

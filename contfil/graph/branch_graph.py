@@ -63,7 +63,7 @@ from contfil.engine.branch import (
 )
 from contfil.errors import ContfilError
 from contfil.graph.identity import IdentityTolerance, same_branch, same_special_point
-from contfil.models.protocol import Symmetries
+from contfil.protocol import Symmetries
 
 # Short labels as in AUTO/MatCont diagrams.
 SP_LABELS = {
@@ -397,30 +397,25 @@ class BranchGraph:
         """Node-link data (``networkx.node_link_data``) of the full graph."""
         return nx.node_link_data(self.to_networkx(flat=False), edges="edges")
 
-    def save_json(self, path: str | Path) -> Path:
-        """Write node-link JSON (atomically) and return the path."""
-        from contfil.io.atomic import atomic_write_text
-
-        return atomic_write_text(path, json.dumps(self.to_json_data(), allow_nan=True))
+    def to_json_text(self) -> str:
+        """Node-link JSON text of the full graph (written by :mod:`contfil.store`)."""
+        return json.dumps(self.to_json_data(), allow_nan=True)
 
     @classmethod
     def load_json(cls, path: str | Path, symmetries: Symmetries | None = None) -> BranchGraph:
-        """Read a graph written by :meth:`save_json`."""
+        """Read a graph written from :meth:`to_json_text`."""
         with open(path, encoding="utf-8") as fh:
             data = json.load(fh)
         return cls.from_networkx(nx.node_link_graph(data, directed=True, multigraph=False,
                                                     edges="edges"), symmetries)
 
-    def save_graphml(self, path: str | Path) -> Path:
-        """Write GraphML (scalar attributes; arrays as JSON strings)."""
-        from contfil.io.atomic import atomic_write_bytes
-
-        buf = "\n".join(nx.generate_graphml(self.to_networkx(flat=True)))
-        return atomic_write_bytes(path, buf.encode("utf-8"))
+    def to_graphml_text(self) -> str:
+        """GraphML text (scalar attributes; arrays as JSON strings)."""
+        return "\n".join(nx.generate_graphml(self.to_networkx(flat=True)))
 
     @classmethod
     def load_graphml(cls, path: str | Path, symmetries: Symmetries | None = None) -> BranchGraph:
-        """Read a graph written by :meth:`save_graphml`."""
+        """Read a graph written from :meth:`to_graphml_text`."""
         return cls.from_networkx(nx.read_graphml(path), symmetries)
 
     def iter_points(self) -> Iterator[tuple[str, int, Point]]:

@@ -38,7 +38,7 @@ from contfil.engine.branch import (
     Point,
     SpecialPoint,
 )
-from contfil.models.protocol import Symmetries
+from contfil.protocol import Symmetries
 
 Array = NDArray[np.float64]
 

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from scipy.optimize import brentq
 
 from contfil.models.catalog.normal_forms import CatalogEntry
-from contfil.models.protocol import FunctionModel
+from contfil.protocol import FunctionModel
 
 Array = NDArray[np.float64]
 

@@ -12,7 +12,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from contfil.models.catalog.normal_forms import CatalogEntry
-from contfil.models.protocol import FunctionModel
+from contfil.protocol import FunctionModel
 
 Array = NDArray[np.float64]
 

@@ -17,7 +17,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from contfil.models.catalog.normal_forms import CatalogEntry
-from contfil.models.protocol import FunctionModel, Symmetries
+from contfil.protocol import FunctionModel, Symmetries
 
 Array = NDArray[np.float64]
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from contfil.models.protocol import FunctionModel
+from contfil.protocol import FunctionModel
 
 PARAMS = ("p", "omega", "b", "c_bp", "c_pd", "c_tr", "nu")
 DEFAULTS = {"p": 1.5, "omega": 1.0, "b": 0.2, "c_bp": 0.4, "c_pd": 0.8, "c_tr": 1.2, "nu": 0.9}

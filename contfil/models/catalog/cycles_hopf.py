@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from contfil.models.protocol import ContinuousSymmetry, FunctionModel, Symmetries
+from contfil.protocol import ContinuousSymmetry, FunctionModel, Symmetries
 
 PARAMS = ("mu", "omega", "a", "b", "c")
 J2 = np.array([[0.0, -1.0], [1.0, 0.0]])

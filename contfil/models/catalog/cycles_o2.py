@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from contfil.models.protocol import (
+from contfil.protocol import (
     ContinuousSymmetry,
     FunctionModel,
     InvariantSubspace,

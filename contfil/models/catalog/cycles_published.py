@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from contfil.models.protocol import FunctionModel
+from contfil.protocol import FunctionModel
 
 LURE_PARAMS = ("alpha", "beta")
 

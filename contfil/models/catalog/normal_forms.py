@@ -1,7 +1,7 @@
 """Normal forms with closed-form bifurcation points.
 
 Each factory returns a :class:`CatalogEntry`: the model (a
-:class:`~contfil.models.protocol.FunctionModel` with its exact Jacobian), the
+:class:`~contfil.protocol.FunctionModel` with its exact Jacobian), the
 continuation parameter, a starting point and the exact answers.
 """
 
@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.models.protocol import ContinuousSymmetry, FunctionModel, Symmetries
+from contfil.protocol import ContinuousSymmetry, FunctionModel, Symmetries
 
 Array = NDArray[np.float64]
 

@@ -30,9 +30,9 @@ from numpy.typing import NDArray
 from scipy.optimize import brentq
 
 from contfil.errors import ContfilError, ConvergenceError
-from contfil.models.protocol import InvariantSubspace, Symmetries
+from contfil.protocol import InvariantSubspace, Symmetries
 
-from . import stepper as _stepper
+from .integrators import bdf2 as _stepper
 from .model import FilamentModel
 
 Array = NDArray[np.float64]
@@ -184,7 +184,7 @@ def solve_whirling(
     """First whirling rotating wave at amplitude ``<d, u> = eps`` from the double Hopf.
 
     Solves ``f(u) - omega L u = 0``, ``<L u_ref, u - u_ref> = 0`` (the
-    engine's :class:`~contfil.engine.rotating_wave.RotatingWaveProblem`) and
+    engine's :class:`~contfil.engine.problems.rotating_wave.RotatingWaveProblem`) and
     the amplitude condition for ``(u, omega, p)``, so the side of the branch
     comes out of the solve. The system is small (``3(N-1) + 2``): dense
     Newton on the bordered Jacobian ``[[G_x, G_p], [d, 0]]`` (model Jacobian),
@@ -192,7 +192,7 @@ def solve_whirling(
     omega), p, info)``; ``info["residual"]`` is ``max|G(x, p)|`` of the
     co-moving system.
     """
-    from contfil.engine.rotating_wave import RotatingWaveProblem
+    from contfil.engine.problems.rotating_wave import RotatingWaveProblem
 
     ws = whirling_seed(model, dh)
     pb = RotatingWaveProblem(model, model.param_names[0], np.array([dh["p"]]))
@@ -240,12 +240,12 @@ def solve_beating(flow_model: FixedStepFlow, dh: dict[str, Any], eps: float,
 
     ``flow_model`` is the 3D model wrapped by :class:`FixedStepFlow`; the
     orbit is solved in its planar reduced model by
-    :class:`~contfil.engine.shooting.PeriodicOrbitProblem` (``subspace =
+    :class:`~contfil.engine.problems.shooting.PeriodicOrbitProblem` (``subspace =
     "planar_xz"``) with ``x = (phi, T)``, seeded with ``eps Re(v_x)`` and
     ``T = 2 pi/omega``. Returns ``(problem, x, p, info)``.
     """
-    from contfil.engine.cycle_switching import solve_with_amplitude
-    from contfil.engine.shooting import PeriodicOrbitProblem
+    from contfil.engine.problems.shooting import PeriodicOrbitProblem
+    from contfil.engine.switching.cycles import solve_with_amplitude
 
     bs = beating_seed(dh)
     pb = PeriodicOrbitProblem(flow_model, flow_model.param_names[0], np.array([dh["p"]]),

@@ -1,4 +1,4 @@
-"""The active-filament model as a :class:`contfil.models.protocol.Model`.
+"""The active-filament model as a :class:`contfil.protocol.Model`.
 
 State: the effective Lie-algebra elements ``U_n`` (n = 2..N) flattened
 segment-major (3D, ``dim = 3(N-1)``), or the in-plane tangent angles
@@ -10,7 +10,6 @@ forces and clamp reactions at the current configuration and returns
 
 from __future__ import annotations
 
-import importlib.util
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from contfil.errors import NonFiniteError
-from contfil.models.protocol import (
+from contfil.protocol import (
     ContinuousSymmetry,
     InvariantSubspace,
     Symmetries,
@@ -70,10 +69,7 @@ class FilamentModel:
         self._KB = float(scene.KB)
         self._KT = float(scene.KT)
         self.symmetries = self._build_symmetries()
-        # time-stepper hook: bound only if the stepper module exists, so that
-        # getattr(model, "flow", None) tells the engine the truth
-        if importlib.util.find_spec(__package__ + ".stepper") is not None:
-            self.flow = self._flow
+        self.flow = self._flow
 
     # -- protocol ---------------------------------------------------------
     def default_params(self) -> Array:
@@ -140,8 +136,8 @@ class FilamentModel:
     flow_dt_max: float = 5e-4
 
     def _flow(self, u: Array, p: Array, T: float, **kwargs: Any) -> Array:
-        """Time-T map, delegated to :mod:`contfil.models.filament.stepper`."""
-        from . import stepper
+        """Time-T map, delegated to :mod:`contfil.models.filament.integrators.bdf2`."""
+        from .integrators import bdf2 as stepper
 
         if kwargs.get("steps") is None and kwargs.get("dt") is None:
             kwargs["steps"] = max(
@@ -182,6 +178,13 @@ class FilamentModel:
         Y[0] = X[0] - 0.5 * self.dL * t[0]
         Y[1:] = X + 0.5 * self.dL * t
         return Y
+
+    def draw_state(self, u: Array, kind: str, extra: dict[str, Any], ax: Any = None,
+                   n_frames: int = 12) -> Any:
+        """Draw state ``u`` of a branch of ``kind`` (plot hook, see :mod:`.views`)."""
+        from .views import draw_state
+
+        return draw_state(self, u, kind, extra, ax=ax, n_frames=n_frames)
 
     def internal_forces(self, u: Array, p: Array) -> dict[str, Array]:
         """Internal force profile at the joints and the clamp reactions.

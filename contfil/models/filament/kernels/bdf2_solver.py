@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..broyden import MAXITER, NONFINITE, OK, STALL, inverse_update, max_abs, neg_matvec
+from .broyden import MAXITER, NONFINITE, OK, STALL, inverse_update, max_abs, neg_matvec
 from .elastic import elastic_moments, elastic_torques
 from .forces import follower_forces, segment_loads
 from .geometry import positions, tangents

@@ -8,7 +8,7 @@ of the parameter::
 
     G(x, p) = 0,   <d̂, x - x*> = ε,
 
-unknowns ``(x, p)`` (Newton–Krylov with hookstep, :mod:`contfil.engine.hookstep`).
+unknowns ``(x, p)`` (Newton–Krylov with hookstep, :mod:`contfil.engine.linalg.hookstep`).
 Which side of ``p*`` the branch lies on (super- or subcritical) falls out of
 this solve. The secant ``X1 - X*`` then orients the continuation away from
 the bifurcation. Folds need no switching: pseudo-arclength passes them.
@@ -48,13 +48,13 @@ from contfil.engine.branch import (
     Branch,
     SpecialPoint,
 )
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.events import normalise_phase
-from contfil.engine.hookstep import newton_hookstep
-from contfil.engine.problem_base import Problem
-from contfil.engine.rotating_wave import RotatingWaveProblem
-from contfil.engine.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
-from contfil.engine.switching import branch_point_tangents, hopf_data, o2_hopf_modes
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.events.standard import normalise_phase
+from contfil.engine.linalg.hookstep import newton_hookstep
+from contfil.engine.problems.base import Problem
+from contfil.engine.problems.rotating_wave import RotatingWaveProblem
+from contfil.engine.problems.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
+from contfil.engine.switching.equilibria import branch_point_tangents, hopf_data, o2_hopf_modes
 from contfil.errors import ContfilError, ConvergenceError
 from contfil.protocol import Model
 
@@ -362,7 +362,7 @@ def cycles_from_branch_point(
 
     Direction: on a dense problem the root of the algebraic bifurcation
     equation in the null space of ``[G_x G_p]`` that is not the incoming
-    branch (:func:`~contfil.engine.switching.branch_point_tangents`, told
+    branch (:func:`~contfil.engine.switching.equilibria.branch_point_tangents`, told
     apart by ``data["tangent_in"]``, the tangent before the point); its
     coefficients are returned in ``info`` as ``abe_*``. Without an incoming
     tangent, ``data["tangent2"]`` (the null vector orthogonal to the tangent
@@ -444,7 +444,7 @@ def cycles_leaving_subspace(
 ) -> BranchStart:
     """First orbit of the branch born where a subspace orbit breaks symmetry.
 
-    ``sp`` is a :class:`~contfil.engine.cycle_events.SubspaceBreakingEvent`
+    ``sp`` is a :class:`~contfil.engine.events.cycles.SubspaceBreakingEvent`
     point of ``problem`` (an orbit solved in an invariant subspace). The new
     branch leaves the subspace, so it is solved in the full model: as a
     :class:`RelativePeriodicOrbitProblem` (unknowns ``u, T`` and the drift

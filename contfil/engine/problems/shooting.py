@@ -19,7 +19,7 @@ model's ``flow_jvp``, or one-sided finite differences of ``flow`` (one flow
 evaluation each). Small systems may ask for the dense Jacobian
 ``[[G Dφ - I, G ∂_Tφ, L G φ], [f̂ᵀ, 0, 0], [L̂uᵀ, 0, 0]]``. Stability: Floquet
 multipliers by matrix-free Arnoldi on ``v -> exp(θL) Dφ_T(u) v``
-(:mod:`contfil.engine.floquet`).
+(:mod:`contfil.engine.linalg.floquet`).
 
 Invariant subspaces (``subspace="planar"``): the orbit is solved in the
 subspace's reduced model (cheaper); stability is computed in the full model
@@ -36,9 +36,9 @@ import scipy.linalg as sla
 from numpy.typing import NDArray
 
 from contfil.engine.branch import PERIODIC_ORBIT, RELATIVE_PERIODIC_ORBIT
-from contfil.engine.default_flow import FlowOps
-from contfil.engine.floquet import floquet_multipliers
-from contfil.engine.problem_base import Problem, Stability, resolve_params
+from contfil.engine.flows.radau import FlowOps
+from contfil.engine.linalg.floquet import floquet_multipliers
+from contfil.engine.problems.base import Problem, Stability, resolve_params
 from contfil.errors import DomainError, SpecError
 from contfil.protocol import Model, param_index
 
@@ -60,7 +60,7 @@ class PeriodicOrbitProblem(Problem):
     Parameters
     ----------
     model:
-        Any :class:`~contfil.models.protocol.Model`; uses ``model.flow`` if
+        Any :class:`~contfil.protocol.Model`; uses ``model.flow`` if
         present, the default Radau IIA flow otherwise.
     param:
         Continuation parameter name.
@@ -84,7 +84,7 @@ class PeriodicOrbitProblem(Problem):
         period, e.g. the period-mean bending energy of a diagram); costs ``k``
         extra flow calls of length ``T/k`` per point.
     flow_kwargs, fd_rel, fd_central:
-        Passed to :class:`~contfil.engine.default_flow.FlowOps` (keywords of a
+        Passed to :class:`~contfil.engine.flows.radau.FlowOps` (keywords of a
         model's own ``flow``; finite-difference increment and scheme).
     """
 
@@ -250,7 +250,7 @@ class PeriodicOrbitProblem(Problem):
     def default_events(self) -> list:
         """Fold, branch point, period doubling and torus of cycles, and for a
         subspace solve the symmetry-breaking pitchfork out of the subspace."""
-        from contfil.engine.cycle_events import cycle_events
+        from contfil.engine.events.cycles import cycle_events
 
         return cycle_events(subspace=self.subspace is not None)
 
@@ -300,7 +300,7 @@ class RelativePeriodicOrbitProblem(PeriodicOrbitProblem):
     ``model.symmetries.continuous[symmetry_index]``). A standing wave is the
     case θ = 0; the extra phase condition ``<L u_ref, u - u_ref> = 0`` keeps
     the Newton system non-singular there. A rotating wave (``f ∥ L u``) makes
-    this system singular: use :class:`~contfil.engine.rotating_wave.RotatingWaveProblem`.
+    this system singular: use :class:`~contfil.engine.problems.rotating_wave.RotatingWaveProblem`.
     """
 
     kind = RELATIVE_PERIODIC_ORBIT

@@ -1,7 +1,7 @@
 """``contfil simulate``: integrate a spec's model in time, summarise, draw.
 
 Filament scenes use the geometric BDF2 stepper
-(:func:`contfil.models.filament.stepper.trajectory`) and draw 3D snapshots
+(:func:`contfil.models.filament.integrators.bdf2.trajectory`) and draw 3D snapshots
 with shadows and the tip path; catalog models are integrated with
 ``scipy.integrate.solve_ivp`` and drawn as time series.
 """
@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from contfil.app.spec import Spec
 from contfil.errors import ContfilError
-from contfil.io.atomic import atomic_write_json
-from contfil.io.spec import Spec
+from contfil.store.atomic import atomic_write_json
 
 
 @dataclass
@@ -60,10 +60,10 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
     """Integrate the model of ``spec`` with the ``[simulate]`` settings."""
     import matplotlib.pyplot as plt
 
-    from contfil.graph import engine_adapter as ea
+    from contfil.app.study import build_model
 
     sim = spec.simulate
-    info = ea.build_model(spec)
+    info = build_model(spec)
     model = info.model
     params = np.array(model.default_params(), dtype=float)
     if sim["strength"] is not None:
@@ -80,8 +80,8 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
     t0 = time.perf_counter()
     files: list[Path] = []
     if spec.scene is not None:
-        from contfil.models.filament.stepper import trajectory
-        from contfil.plot.diagrams import filament_snapshots
+        from contfil.models.filament.integrators.bdf2 import trajectory
+        from contfil.models.filament.views import filament_snapshots
 
         traj = trajectory(model, u0, params, sim["t_end"], steps=n_steps, out_every=every)
         t, states = traj.t, traj.states

@@ -46,11 +46,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from contfil.engine.branch import BRANCH_POINT, CYCLE_BRANCH_POINT, DOUBLE_HOPF, FOLD, HOPF
-from contfil.engine.problem_base import Stability
+from contfil.engine.problems.base import Stability
 
 if TYPE_CHECKING:
-    from contfil.engine.continuation import ContinuationSettings
-    from contfil.engine.problem_base import Problem
+    from contfil.engine.continuation.driver import ContinuationSettings
+    from contfil.engine.problems.base import Problem
 
 Array = NDArray[np.float64]
 

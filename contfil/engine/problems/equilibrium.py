@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from contfil.engine.branch import EQUILIBRIUM
-from contfil.engine.eigen import (
+from contfil.engine.linalg.eigen import (
     complex_shift_stability,
     dense_stability,
     inverse_from_dense,
@@ -17,7 +17,7 @@ from contfil.engine.eigen import (
     merge_stability,
     shift_invert_stability,
 )
-from contfil.engine.problem_base import Problem, Stability, fd_step, resolve_params
+from contfil.engine.problems.base import Problem, Stability, fd_step, resolve_params
 from contfil.errors import ConvergenceError, NonFiniteError, SpecError
 from contfil.protocol import Model, param_index
 
@@ -30,7 +30,7 @@ class EquilibriumProblem(Problem):
     Parameters
     ----------
     model:
-        Any object satisfying :class:`contfil.models.protocol.Model`.
+        Any object satisfying :class:`contfil.protocol.Model`.
     param:
         Name of the continuation parameter (one of ``model.param_names``).
     params:

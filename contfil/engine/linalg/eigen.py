@@ -1,7 +1,7 @@
 """Eigenvalues of Jacobians: dense for small systems, shift-invert Arnoldi
 for large ones.
 
-All functions return a :class:`~contfil.engine.problem_base.Stability` with
+All functions return a :class:`~contfil.engine.problems.base.Stability` with
 eigenvalues sorted *leading first*: by decreasing real part, and for equal
 real parts the member with positive imaginary part first (so a complex pair
 appears as ``a+ib, a-ib``).
@@ -16,7 +16,7 @@ import scipy.linalg as sla
 from numpy.typing import NDArray
 from scipy.sparse.linalg import ArpackNoConvergence, LinearOperator, eigs, gmres
 
-from contfil.engine.problem_base import Stability
+from contfil.engine.problems.base import Stability
 from contfil.errors import ConvergenceError, NonFiniteError
 
 Array = NDArray[np.float64]

@@ -31,10 +31,10 @@ import scipy.linalg as sla
 from numpy.typing import NDArray
 
 from contfil.engine.branch import ROTATING_WAVE
-from contfil.engine.default_flow import FlowOps
-from contfil.engine.floquet import floquet_multipliers
-from contfil.engine.hookstep import newton_hookstep
-from contfil.engine.problem_base import Problem, Stability, fd_step, resolve_params
+from contfil.engine.flows.radau import FlowOps
+from contfil.engine.linalg.floquet import floquet_multipliers
+from contfil.engine.linalg.hookstep import newton_hookstep
+from contfil.engine.problems.base import Problem, Stability, fd_step, resolve_params
 from contfil.errors import SpecError
 from contfil.protocol import Model, param_index
 
@@ -191,7 +191,7 @@ class RotatingWaveProblem(Problem):
         return obs
 
     def default_events(self) -> list:
-        from contfil.engine.events import BranchPointEvent, FoldEvent
+        from contfil.engine.events.standard import BranchPointEvent, FoldEvent
 
         return [FoldEvent(), BranchPointEvent(), _torus_event()]
 
@@ -302,7 +302,7 @@ def _torus_event():  # noqa: ANN202
     not a Hopf point of an equilibrium; no branch of cycles is born there.
     """
     from contfil.engine.branch import TORUS
-    from contfil.engine.events import HopfEvent
+    from contfil.engine.events.standard import HopfEvent
 
     class TorusOfRotatingWave(HopfEvent):
         name = "torus"

@@ -30,7 +30,7 @@ import numpy as np
 import scipy.linalg as sla
 from numpy.typing import NDArray
 
-from contfil.engine.problem_base import fd_step
+from contfil.engine.problems.base import fd_step
 from contfil.errors import ConvergenceError, NonFiniteError
 
 Array = NDArray[np.float64]

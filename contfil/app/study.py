@@ -9,12 +9,20 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from contfil.errors import ContfilError
-from contfil.graph import engine_adapter as ea
+import numpy as np
+
+from contfil.app.spec import Spec, load_spec
+from contfil.engine.continuation.driver import ContinuationSettings
+from contfil.engine.problems.equilibrium import EquilibriumProblem
+from contfil.errors import ContfilError, SpecError
+from contfil.explore.continuer import engine_continuer
+from contfil.explore.explorer import Explorer, ExplorerSettings, Progress
+from contfil.explore.seeds import Seed
+from contfil.explore.switchers import default_switchers
 from contfil.graph.branch_graph import BranchGraph
-from contfil.graph.explorer import Explorer, ExplorerSettings, Progress
-from contfil.io.spec import Spec, load_spec
-from contfil.io.store import RunStore
+from contfil.models.registry import ModelInfo
+from contfil.models.registry import build_model as _build_model
+from contfil.store.run_store import RunStore, save_graph_graphml
 
 
 @dataclass
@@ -44,6 +52,67 @@ def default_run_dir(spec: Spec, resume: bool = False, base: str | Path = "runs")
         if not (c.exists() and any(c.iterdir())):
             return c
     raise ContfilError(f"too many runs named {stem}-*; pass --out")
+
+
+def build_model(spec: Spec) -> ModelInfo:
+    """The model a spec describes (its ``[scene]`` or ``[model]`` table)."""
+    return _build_model(scene=spec.scene, model=spec.model)
+
+
+def continuation_parameter(spec: Spec, info: ModelInfo) -> str:
+    """The continued parameter: ``continuation.parameter``, else the model's own."""
+    model = info.model
+    name = spec.continuation.get("parameter") or info.param
+    if name is None:
+        names = list(model.param_names)
+        if len(names) != 1:
+            raise SpecError(
+                f"continuation.parameter: missing; model {model.name!r} has parameters {names}")
+        name = names[0]
+    if name not in model.param_names:
+        raise SpecError(
+            f"continuation.parameter: model {model.name!r} has no parameter {name!r}; "
+            f"known: {list(model.param_names)}")
+    return str(name)
+
+
+def root_seed(spec: Spec, info: ModelInfo) -> Seed:
+    """Seed of the root branch (an equilibrium problem at the start value)."""
+    model = info.model
+    param = continuation_parameter(spec, info)
+    params = np.array(model.default_params(), dtype=float)
+    ip = list(model.param_names).index(param)
+    c = spec.continuation
+    if c["start"] is not None:
+        params[ip] = c["start"]
+    elif info.p0 is not None and param == info.param:
+        params[ip] = info.p0
+    problem = EquilibriumProblem(model, param, params)
+    if c["initial_state"] is not None:
+        x0 = np.asarray(c["initial_state"], dtype=float)
+        if x0.shape != (model.dim,):
+            raise SpecError(
+                f"continuation.initial_state: expected {model.dim} numbers, got {x0.size}")
+    elif info.u0 is not None and c["start"] is None:
+        x0 = np.asarray(info.u0, dtype=float)
+    else:
+        x0 = np.asarray(model.initial_state(params), dtype=float)
+    return Seed(problem=problem, x0=x0, p0=float(params[ip]), direction=int(c["direction"]),
+                both_directions=bool(c["both_directions"]), label="root")
+
+
+def engine_settings(spec: Spec) -> ContinuationSettings:
+    """``ContinuationSettings`` from the ``[continuation]`` table."""
+    c = spec.continuation
+    lo, hi = c["range"]
+    return ContinuationSettings(
+        ds=c["ds"], ds_min=c["ds_min"], ds_max=c["ds_max"],
+        # The explorer counts points per segment itself; the engine only
+        # needs a budget that is never the binding one.
+        max_points=10**9, p_min=lo, p_max=hi,
+        newton_tol=c["tol"], newton_max_iter=c["max_newton"],
+        compute_stability=c["stability"],
+    )
 
 
 def explorer_settings(spec: Spec) -> ExplorerSettings:
@@ -91,8 +160,8 @@ def run_study(
     if not isinstance(spec, Spec):
         spec = load_spec(spec)
     run_dir = Path(out) if out is not None else default_run_dir(spec, resume)
-    info = ea.build_model(spec)
-    seed = ea.root_seed(spec, info)
+    info = build_model(spec)
+    seed = root_seed(spec, info)
     store = RunStore(run_dir, spec=spec.raw, spec_text=spec.text, resume=resume,
                      fsync=spec.output["fsync"])
     meta = {
@@ -103,12 +172,12 @@ def run_study(
     }
     explorer = Explorer(
         root=seed,
-        continuer=continuer or ea.engine_continuer,
+        continuer=continuer or engine_continuer,
         settings=explorer_settings(spec),
-        switchers=switchers if switchers is not None else ea.default_switchers(
+        switchers=switchers if switchers is not None else default_switchers(
             branch_kinds=None if spec.explorer["branches"] is None
             else tuple(spec.explorer["branches"])),
-        continuation_settings=ea.engine_settings(spec),
+        continuation_settings=engine_settings(spec),
         store=store,
         symmetries=getattr(info.model, "symmetries", None),
         progress=progress,
@@ -120,10 +189,11 @@ def run_study(
     graph = explorer.run()
     files = [store.save_graph(graph)]
     if spec.output["graphml"]:
-        files.append(graph.save_graphml(run_dir / "graph.graphml"))
+        files.append(save_graph_graphml(graph, run_dir / "graph.graphml"))
     do_plots = spec.output["plots"] if plots is None else plots
     if do_plots and len(graph):
-        from contfil.plot.diagrams import save_run_plots, save_shape_plots
+        from contfil.plot.diagrams import save_run_plots
+        from contfil.plot.shapes import save_shape_plots
 
         files += save_run_plots(graph, run_dir / "plots", spec.output["observable"])
         files += save_shape_plots(info.model, graph, run_dir / "plots")

@@ -69,9 +69,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from contfil.graph.explorer import Progress
-    from contfil.graph.study import run_study
-    from contfil.io.spec import load_spec
+    from contfil.app.spec import load_spec
+    from contfil.app.study import run_study
+    from contfil.explore.explorer import Progress
 
     spec = load_spec(args.spec)
     t0 = time.monotonic()
@@ -89,7 +89,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
-    from contfil.io.store import load_run_graph
+    from contfil.store.run_store import load_run_graph, save_graph_graphml, save_graph_json
 
     g = load_run_graph(args.run)
     if args.states:
@@ -97,7 +97,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
         import networkx as nx
 
-        from contfil.io.atomic import atomic_write_bytes, atomic_write_text
+        from contfil.store.atomic import atomic_write_bytes, atomic_write_text
 
         out = Path(args.output) if args.output else Path(args.run) / f"states.{args.format}"
         sg = g.state_graph()
@@ -112,9 +112,9 @@ def _cmd_export(args: argparse.Namespace) -> int:
         if out.resolve() == (Path(args.run) / "graph.json").resolve():
             print(out)  # the run's own graph.json is already the node-link export
             return 0
-        g.save_json(out)
+        save_graph_json(g, out)
     else:
-        g.save_graphml(out)
+        save_graph_graphml(g, out)
     print(out)
     return 0
 
@@ -128,9 +128,9 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     spec_file = Path(args.run) / "spec.toml"
     if spec_file.exists():
         # Shapes need the model: rebuilt from the run's own spec.
-        from contfil.graph.engine_adapter import build_model
-        from contfil.io.spec import load_spec
-        from contfil.plot.diagrams import save_shape_plots
+        from contfil.app.spec import load_spec
+        from contfil.app.study import build_model
+        from contfil.plot.shapes import save_shape_plots
 
         files += save_shape_plots(build_model(load_spec(spec_file)).model, g, out)
     for f in files:
@@ -139,7 +139,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    from contfil.io.store import RunStore, load_run_graph, task_summaries
+    from contfil.store.run_store import RunStore, load_run_graph, task_summaries
 
     run = Path(args.run)
     status = "complete"
@@ -158,8 +158,8 @@ def _cmd_show(args: argparse.Namespace) -> int:
 
 
 def _cmd_simulate(args: argparse.Namespace) -> int:
-    from contfil.io.simulate import simulate
-    from contfil.io.spec import load_spec
+    from contfil.app.simulate import simulate
+    from contfil.app.spec import load_spec
 
     spec = load_spec(args.spec)
     out = Path(args.out) if args.out else Path("runs") / f"{spec.name}-simulate"

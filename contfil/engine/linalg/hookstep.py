@@ -287,14 +287,14 @@ def hookstep_corrector(**options: Any) -> Callable[..., tuple[Array, Any]]:
     """A corrector for the continuation driver, backed by :func:`newton_hookstep`.
 
     Returns ``corrector(F, jvp, X0, tol, max_iter) -> (X, NewtonInfo)`` with
-    the convention of :mod:`contfil.engine.newton`: the augmented system
+    the convention of :mod:`contfil.engine.linalg.newton`: the augmented system
     (``X = (x, p)``) is solved to ``max|F| <= tol``; plain non-convergence is
     reported (``converged=False`` with the last residual), not raised, so the
     driver can cut its step. ``jvp`` may be None (finite differences).
     ``options`` go to :func:`newton_hookstep`; the counts of residual
     evaluations are kept in ``corrector.counts``.
     """
-    from contfil.engine.newton import NewtonInfo
+    from contfil.engine.linalg.newton import NewtonInfo
 
     counts = {"calls": 0, "residual_evals": 0, "jvp_evals": 0}
 

@@ -19,7 +19,7 @@ is followed in both directions (both halves of a pitchfork).
 Hopf points
 -----------
 :func:`hopf_data` returns the frequency, period and critical eigenvectors
-stored by :class:`~contfil.engine.events.HopfEvent` (keys ``omega``,
+stored by :class:`~contfil.engine.events.standard.HopfEvent` (keys ``omega``,
 ``frequency``, ``period``, ``v_re``, ``v_im``, ``multiplicity``, ``pairs``,
 ``v2_re``, ``v2_im`` for double Hopf). :func:`o2_hopf_modes` splits a
 symmetry-forced double Hopf eigenspace into rotating-wave and standing-wave
@@ -34,9 +34,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from contfil.engine.branch import BRANCH_POINT, DOUBLE_HOPF, HOPF, Branch, SpecialPoint
-from contfil.engine.continuation import Continuation, ContinuationSettings
-from contfil.engine.events import Event
-from contfil.engine.problem_base import Problem
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.events.standard import Event
+from contfil.engine.problems.base import Problem
 from contfil.errors import ContfilError, ConvergenceError
 
 Array = NDArray[np.float64]

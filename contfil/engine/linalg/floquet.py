@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.engine.problem_base import Stability
+from contfil.engine.problems.base import Stability
 from contfil.errors import NonFiniteError
 
 Array = NDArray[np.float64]

@@ -37,9 +37,9 @@ from numpy.typing import NDArray
 from scipy.sparse.linalg import LinearOperator, gmres
 
 from contfil.engine.branch import ENDPOINT, Branch, Point, SpecialPoint
-from contfil.engine.events import Event, EventContext, default_events
-from contfil.engine.newton import NewtonInfo, newton_dense, newton_krylov
-from contfil.engine.problem_base import Problem
+from contfil.engine.events.standard import Event, EventContext, default_events
+from contfil.engine.linalg.newton import NewtonInfo, newton_dense, newton_krylov
+from contfil.engine.problems.base import Problem
 from contfil.errors import ContfilError, ConvergenceError, DomainError, NonFiniteError
 
 Array = NDArray[np.float64]
@@ -205,7 +205,7 @@ class Continuation:
         at a branch point.
     events:
         List of :class:`Event`; defaults to ``problem.default_events()`` if
-        the problem has it, else :func:`contfil.engine.events.default_events`.
+        the problem has it, else :func:`contfil.engine.events.standard.default_events`.
     corrector:
         Optional ``corrector(F, jvp, X0, tol, max_iter) -> (X, info)`` solving
         the augmented ``n + 1`` system; ``info`` needs ``converged``,

@@ -18,7 +18,7 @@ Layout of a run directory::
 Why append-only JSON lines (and not SQLite): every accepted point is one
 ``write`` of one self-checking line (``crc32 length json``) followed by an
 fsync, so a crash loses at most the point being written and a torn tail is
-recognised and dropped on resume (:class:`contfil.io.atomic.RecordLog`).
+recognised and dropped on resume (:class:`contfil.store.atomic.RecordLog`).
 Files are plain text, readable with ``head``/``jq`` without contfil, diff
 well, need no locking and no schema migration. Points of a branch are
 always read whole, so nothing is gained from a query engine. The small
@@ -39,7 +39,7 @@ import numpy as np
 
 from contfil.engine.branch import Point, SpecialPoint
 from contfil.errors import ContfilError
-from contfil.io.atomic import RecordLog, atomic_write_json, atomic_write_text, encode_record
+from contfil.store.atomic import RecordLog, atomic_write_json, atomic_write_text, encode_record
 
 FORMAT = "contfil-run/1"
 
@@ -256,7 +256,17 @@ class RunStore:
         return self.root / "graph.json"
 
     def save_graph(self, graph: Any) -> Path:
-        return graph.save_json(self.graph_path)
+        return save_graph_json(graph, self.graph_path)
+
+
+def save_graph_json(graph: Any, path: str | Path) -> Path:
+    """Write a graph's node-link JSON atomically; returns the path."""
+    return atomic_write_text(path, graph.to_json_text())
+
+
+def save_graph_graphml(graph: Any, path: str | Path) -> Path:
+    """Write a graph's GraphML atomically; returns the path."""
+    return atomic_write_text(path, graph.to_graphml_text())
 
 
 def _json_roundtrip(obj: Any) -> Any:

@@ -1,4 +1,4 @@
-"""Bifurcations of periodic orbits as :class:`~contfil.engine.events.Event` s.
+"""Bifurcations of periodic orbits as :class:`~contfil.engine.events.standard.Event` s.
 
 - fold of cycles (``CYCLE_FOLD``): the ``p`` component of the tangent
   changes sign (:class:`CycleFoldEvent`);
@@ -18,7 +18,7 @@
   multipliers do.
 
 Multiplier tests skip the trivial multipliers (flagged by their eigenvectors
-in :mod:`contfil.engine.floquet`). Detection needs both the count of
+in :mod:`contfil.engine.linalg.floquet`). Detection needs both the count of
 multipliers of the tested type outside the unit circle *and* the total
 unstable count to change (a complex pair becoming real outside the circle is
 no bifurcation); localisation is on ``log|μ|`` of the multiplier nearest the unit circle
@@ -34,8 +34,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from contfil.engine.branch import CYCLE_BRANCH_POINT, CYCLE_FOLD, PERIOD_DOUBLING, TORUS
-from contfil.engine.events import BranchPointEvent, Event, EventContext, FoldEvent
-from contfil.engine.problem_base import Stability
+from contfil.engine.events.standard import BranchPointEvent, Event, EventContext, FoldEvent
+from contfil.engine.problems.base import Stability
 
 Array = NDArray[np.float64]
 
@@ -314,7 +314,7 @@ def _broken_reflection(problem: Any, v: NDArray[np.float64]) -> str | None:
 class SubspaceBreakingEvent(Event):
     """Symmetry-breaking pitchfork of an orbit solved in an invariant subspace.
 
-    For :class:`~contfil.engine.shooting.PeriodicOrbitProblem` with
+    For :class:`~contfil.engine.problems.shooting.PeriodicOrbitProblem` with
     ``subspace=...`` (a planar beating filament, say) the orbit is solved in
     the reduced model and its multipliers in the full one. A real multiplier
     crossing +1 whose eigenvector lies (mostly) outside the subspace — less
@@ -324,7 +324,7 @@ class SubspaceBreakingEvent(Event):
     localisation on ``log μ`` of the candidate nearest +1.
 
     The new branch leaves the subspace: it is followed in the full model
-    (:func:`~contfil.engine.cycle_switching.cycles_leaving_subspace`; with a
+    (:func:`~contfil.engine.switching.cycles.cycles_leaving_subspace`; with a
     continuous symmetry it generically drifts along the group orbit, a
     relative periodic orbit). ``broken_reflection`` names a declared
     reflection that fixes the subspace and flips the critical mode (the two

@@ -16,7 +16,7 @@ from its last stored point (the continuer restores the iterator state from
 it: last points, tangent, step size), and the rest is computed as normal.
 
 The continuation itself is pluggable (:class:`Continuer`): the engine adapter
-in :mod:`contfil.graph.engine_adapter` is the production one; tests may use
+in :mod:`contfil.explore.continuer` is the production one; tests may use
 any iterator of :class:`Step`.
 """
 
@@ -32,10 +32,10 @@ import numpy as np
 
 from contfil.engine.branch import Branch, Point, SpecialPoint, decode, encode
 from contfil.errors import ContfilError
+from contfil.explore.seeds import Seed, SwitcherRegistry
 from contfil.graph.branch_graph import BranchGraph
 from contfil.graph.identity import IdentityTolerance
-from contfil.graph.seeds import Seed, SwitcherRegistry
-from contfil.io.store import RunStore, TaskRecords
+from contfil.store.run_store import RunStore, TaskRecords
 
 
 @dataclass

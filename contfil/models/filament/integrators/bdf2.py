@@ -32,7 +32,7 @@ in-plane position rows (``2N``) and the e2 orientation rows (``N``): ``3N``
 unknowns and equations. (The residual is still evaluated with the 3D
 kernels, whose out-of-plane components vanish on planar states.)
 
-Solver: inverse ("good") Broyden, see :mod:`contfil.models.filament.broyden`,
+Solver: inverse ("good") Broyden, see :mod:`contfil.models.filament.kernels.broyden`,
 started from the linear extrapolation ``2 z^k - z^{k-1}`` of increments and
 loads (first step: zero increments and the multipliers of the continuous
 constraint problem at the initial state).
@@ -81,15 +81,15 @@ from numpy.typing import NDArray
 
 from contfil.errors import ConvergenceError, NonFiniteError
 
-from . import broyden as _br
-from .kernels import bdf2_solver as _k
-from .kernels import constraints as _kc
-from .kernels import elastic as _elastic
-from .kernels import forces as _forces
-from .kernels import rpy as _rpy
-from .kernels import squirmer as _sq
-from .kernels.geometry import frames_from_state, positions, state_from_frames, tangents
-from .scene import Scene
+from ..kernels import bdf2_solver as _k
+from ..kernels import broyden as _br
+from ..kernels import constraints as _kc
+from ..kernels import elastic as _elastic
+from ..kernels import forces as _forces
+from ..kernels import rpy as _rpy
+from ..kernels import squirmer as _sq
+from ..kernels.geometry import frames_from_state, positions, state_from_frames, tangents
+from ..scene import Scene
 
 Array = NDArray[np.float64]
 

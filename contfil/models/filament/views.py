@@ -1,0 +1,103 @@
+"""Filament views: centrelines in 3-D coloured by time, shadows, tip paths.
+
+These draw a filament state; the generic plots of :mod:`contfil.plot` reach
+them through the model's ``draw_state`` hook, so they never need to know
+which model they draw.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.axes import Axes
+from numpy.typing import NDArray
+
+
+def filament_snapshots(
+    positions: NDArray[np.float64],
+    times: NDArray[np.float64] | None = None,
+    ax: Axes | None = None,
+    shadow: bool = True,
+    tip_path: bool = True,
+    cmap: str = "viridis",
+    tip_positions: NDArray[np.float64] | None = None,
+) -> Axes:
+    """Filament centrelines in 3D coloured by time, with shadows and the tip path.
+
+    Parameters
+    ----------
+    positions:
+        ``(n_times, N, 3)`` points along the filament (base first) at each
+        time, e.g. ``model.centreline(u)`` stacked over a trajectory.
+    times:
+        ``(n_times,)`` times for the colour scale (default: the index).
+    ax:
+        A 3D Axes (``projection="3d"``); a new figure otherwise.
+    shadow:
+        Draw each shape's projection on the base plane ``z = z_min`` in grey.
+    tip_path:
+        Draw the path of the free end over all times.
+    tip_positions:
+        ``(m, 3)`` tip positions sampled more finely than the snapshots
+        (e.g. every time step); default: the last point of each snapshot.
+    """
+    X = np.asarray(positions, dtype=float)
+    if X.ndim != 3 or X.shape[2] != 3:
+        raise ValueError(f"filament_snapshots: positions must be (n_times, N, 3), got {X.shape}")
+    nt = X.shape[0]
+    t = np.arange(nt, dtype=float) if times is None else np.asarray(times, dtype=float)
+    if t.shape != (nt,):
+        raise ValueError(f"filament_snapshots: times must have shape ({nt},), got {t.shape}")
+    if ax is None:
+        fig = plt.figure(figsize=(5.6, 5.6))
+        ax = fig.add_subplot(projection="3d")
+    cm = plt.get_cmap(cmap)
+    span = float(t.max() - t.min()) or 1.0
+    z0 = min(0.0, float(X[..., 2].min()))
+    for k in range(nt):
+        c = cm((t[k] - t.min()) / span)
+        ax.plot(X[k, :, 0], X[k, :, 1], X[k, :, 2], color=c, lw=1.4)
+        if shadow:
+            ax.plot(X[k, :, 0], X[k, :, 1], np.full(X.shape[1], z0), color="0.6", lw=0.8,
+                    alpha=0.5)
+    if tip_path:
+        tp = X[:, -1, :] if tip_positions is None else np.asarray(tip_positions, dtype=float)
+        ax.plot(tp[:, 0], tp[:, 1], tp[:, 2], color="k", lw=0.8, ls="--")
+        if shadow:
+            ax.plot(tp[:, 0], tp[:, 1], np.full(len(tp), z0), color="0.3", lw=0.6, ls=":")
+    r = float(np.max(np.abs(X[..., :2]))) or 1.0
+    ax.set_xlim(-r, r)
+    ax.set_ylim(-r, r)
+    ax.set_zlim(z0, max(float(X[..., 2].max()), z0 + 1e-9))
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_zlabel("z")
+    sm = plt.cm.ScalarMappable(cmap=cm, norm=plt.Normalize(float(t.min()), float(t.max())))
+    ax.figure.colorbar(sm, ax=ax, shrink=0.6, label="time")
+    return ax
+
+
+def draw_state(model: Any, u: NDArray[np.float64], kind: str, extra: dict[str, Any],
+               ax: Axes | None = None, n_frames: int = 12) -> Axes:
+    """Draw one state of a branch of ``kind`` in 3-D.
+
+    A rotating wave is drawn over one period of its motion, which is a rigid
+    rotation ``u(t) = exp(omega t L) u`` of the stored co-moving state (no
+    time stepping needed); other kinds are drawn as the stored shape.
+    ``model`` needs ``centreline(u)`` and, for rotating waves, a continuous
+    symmetry.
+    """
+    u = np.asarray(u, dtype=float)
+    omega = float(extra.get("omega", 0.0))
+    sym = getattr(getattr(model, "symmetries", None), "continuous", None)
+    if kind == "rotating_wave" and omega != 0.0 and sym:
+        T = 2 * np.pi / abs(omega)
+        times = np.linspace(0.0, T, n_frames + 1)
+        X = np.array([model.centreline(sym[0].act(omega * t, u)) for t in times])
+    else:
+        times = np.zeros(1)
+        X = np.asarray(model.centreline(u), dtype=float)[None]
+    return filament_snapshots(X, times if len(times) > 1 else None, ax=ax,
+                              tip_path=len(times) > 1)
