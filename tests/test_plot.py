@@ -27,7 +27,11 @@ def _graph() -> BranchGraph:
                   eigenvalues=np.array([-0.5 * m, -1.0], dtype=complex),
                   observables={"u0": np.sqrt(m / 2), "bending_energy": m}) for m in mus1]
     b1, _ = g.add_branch(Branch("equilibrium", "mu", pts1))
-    sp = SpecialPoint(BRANCH_POINT, pts[10], 9, {})
+    # Localised between samples 10 (mu = 0) and 11 (mu = 0.1), at mu = 0.04
+    # (off the sample grid, so the split point is recognisable).
+    spt = Point(u=np.zeros(2), p=0.04, params=np.array([0.04]), n_unstable=0,
+                observables={"u0": 0.0, "bending_energy": 0.0})
+    sp = SpecialPoint(BRANCH_POINT, spt, 10, {})
     s, _ = g.add_special_point(b0, sp)
     g.link(s, b1)
     return g
@@ -38,10 +42,15 @@ def test_bifurcation_diagram_styles_and_labels() -> None:
     assert ax.get_ylabel() == "bending energy" and ax.get_xlabel() == "mu"
     solid = [ln for ln in ax.lines if ln.get_linestyle() == "-"]
     dashed = [ln for ln in ax.lines if ln.get_linestyle() == "--"]
-    # Trivial branch: stable (solid) for mu <= 0, unstable (dashed) after.
-    assert any(np.allclose(ln.get_xdata().max(), 0.1) and ln.get_xdata().min() == -1
-               for ln in solid)
-    assert len(dashed) == 1 and dashed[0].get_xdata().min() == pytest.approx(0.1)
+    # Trivial branch: stable (solid) up to the branch point at mu = 0.04,
+    # unstable (dashed) after it: the two runs meet exactly there, not at a
+    # sample of the branch (0 or 0.1).
+    triv = [ln for ln in solid if ln.get_xdata().min() == -1]
+    assert len(triv) == 1
+    assert triv[0].get_xdata()[-1] == 0.04 and triv[0].get_ydata()[-1] == 0.0
+    assert len(dashed) == 1
+    assert dashed[0].get_xdata()[0] == 0.04 and dashed[0].get_ydata()[0] == 0.0
+    np.testing.assert_allclose(dashed[0].get_xdata()[1:], np.linspace(-1, 1, 21)[11:])
     # Nontrivial branch: energy = mu along it.
     nontriv = [ln for ln in solid if np.max(ln.get_ydata()) > 0]
     assert len(nontriv) == 1
@@ -136,3 +145,131 @@ def test_branch_snapshots_of_rotating_wave_is_rigid_rotation() -> None:
     np.testing.assert_allclose(z, 1.0)
     np.testing.assert_allclose([x[0], y[0]], [x[-1], y[-1]], atol=1e-12)  # one period
     plt.close(ax.figure)
+
+
+def test_stability_change_without_special_point_is_at_interval_midpoint() -> None:
+    # No event localised (detection off): the change is drawn halfway between
+    # the last stable and the first unstable sample.
+    ps = np.array([0.0, 1.0, 2.0, 3.0])
+    pts = [Point(u=np.zeros(1), p=p, params=np.array([p]), n_unstable=int(p > 1.5),
+                 observables={"y": 2 * p}) for p in ps]
+    g = BranchGraph()
+    g.add_branch(Branch("equilibrium", "mu", pts))
+    ax = bifurcation_diagram(g, observable="y", legend=False)
+    solid, dashed = ax.lines[0], ax.lines[1]
+    assert solid.get_linestyle() == "-" and dashed.get_linestyle() == "--"
+    np.testing.assert_array_equal(solid.get_xdata(), [0.0, 1.0, 1.5])
+    np.testing.assert_array_equal(dashed.get_xdata(), [1.5, 2.0, 3.0])
+    np.testing.assert_array_equal(dashed.get_ydata(), [3.0, 4.0, 6.0])
+    plt.close(ax.figure)
+
+
+def _crossing_graph(kind: str = "equilibrium", seed: int = 1) -> tuple[BranchGraph, np.ndarray]:
+    """Four eigenvalues along a branch, two real ones crossing at p = 0.3 and
+    a complex pair, stored in a random order at every point."""
+    rng = np.random.default_rng(seed)
+    ps = np.linspace(0.0, 1.0, 23)  # 0.3 is not a sample: no exact tie
+    # |Im| T < pi: the multipliers' angles do not wrap.
+    exact = np.array([[-0.5 + p, 0.1 - p, -1.0 + (1 + p) * 0.5j, -1.0 - (1 + p) * 0.5j]
+                      for p in ps])
+    T = 2.0
+    pts = []
+    for p, lam in zip(ps, exact, strict=True):
+        ev = rng.permutation(np.exp(lam * T) if kind == "periodic_orbit" else lam)
+        pts.append(Point(u=np.zeros(1), p=p, params=np.array([p]), kind=kind,
+                         extra={"period": T}, eigenvalues=ev, n_unstable=0))
+    g = BranchGraph()
+    g.add_branch(Branch(kind, "mu", pts))
+    return g, exact
+
+
+@pytest.mark.parametrize("kind", ["equilibrium", "periodic_orbit"])
+def test_eigenvalue_curves_are_tracked_across_crossings(kind: str) -> None:
+    # Stored order permuted at random and two values crossing: each drawn
+    # curve must still be one of the four exact (affine) curves, not a
+    # zig-zag between them. Cycles: multipliers exp(lambda T) are tracked and
+    # shown as exponents lambda.
+    g, exact = _crossing_graph(kind)
+    ax_re, ax_im = eigenvalue_plot(g, n=4)
+    curves = [ln.get_ydata() + 1j * im.get_ydata()
+              for ln, im in zip(ax_re.lines[:4], ax_im.lines[:4], strict=True)]
+    matched = set()
+    for c in curves:
+        j = int(np.argmin([np.max(np.abs(c - exact[:, k])) for k in range(4)]))
+        np.testing.assert_allclose(c, exact[:, j], atol=1e-12)
+        matched.add(j)
+    assert matched == {0, 1, 2, 3}
+    plt.close(ax_re.figure)
+
+
+def test_track_eigenvalues_uneven_steps_and_missing_points() -> None:
+    from contfil.plot.diagrams import track_eigenvalues
+
+    # lambda_1 = p, lambda_2 = 1 - p on an uneven grid, a point without
+    # eigenvalues in between, values given leading-first (they swap at 0.5).
+    ps = np.array([0.0, 0.1, 0.35, 0.45, 0.6, 0.62, 0.9])
+    vals = [None if k == 3 else np.array(sorted([p, 1 - p], reverse=True), dtype=complex)
+            for k, p in enumerate(ps)]
+    E = track_eigenvalues(vals, 2, ps)
+    assert np.isnan(E[3]).all()
+    keep = np.arange(len(ps)) != 3
+    np.testing.assert_allclose(E[keep, 0].real, 1 - ps[keep], atol=1e-12)
+    np.testing.assert_allclose(E[keep, 1].real, ps[keep], atol=1e-12)
+
+
+def _tilted_rods(a: float, n_times: int = 5) -> np.ndarray:
+    s = np.linspace(0, 1, 11)
+    out = []
+    for t in np.linspace(0, 1, n_times):
+        phi = 2 * np.pi * t
+        out.append(s[:, None] * np.array([np.sin(a) * np.cos(phi), np.sin(a) * np.sin(phi),
+                                          np.cos(a)]))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("tilt", [0.1, 0.3, 1.2])
+def test_filament_snapshots_equal_aspect(tilt: float) -> None:
+    # One unit of length is drawn equally long in x, y and z: the box sides
+    # are proportional to the axis ranges (matplotlib's default cube would
+    # stretch the horizontal of a tall filament).
+    X = _tilted_rods(tilt)
+    ax = filament_snapshots(X, np.linspace(0, 1, len(X)))
+    ranges = np.array([np.ptp(ax.get_xlim()), np.ptp(ax.get_ylim()), np.ptp(ax.get_zlim())])
+    box = np.asarray(ax.get_box_aspect())
+    np.testing.assert_allclose(box / ranges, box[0] / ranges[0], rtol=1e-12)
+    # The data fit, horizontal window centred on the axis.
+    assert ax.get_xlim()[1] >= np.abs(X[..., :2]).max() and ax.get_zlim()[1] >= X[..., 2].max()
+    assert ax.get_xlim()[0] == -ax.get_xlim()[1]
+    plt.close(ax.figure)
+
+
+def _colorbars(fig) -> list:
+    return [a for a in fig.axes if a.get_label() == "<colorbar>"]
+
+
+def test_single_snapshot_has_no_time_colorbar() -> None:
+    X = _tilted_rods(0.3)[:1]
+    ax = filament_snapshots(X)
+    assert _colorbars(ax.figure) == []
+    plt.close(ax.figure)
+    ax = filament_snapshots(_tilted_rods(0.3), np.linspace(0, 2, 5))
+    (cb,) = _colorbars(ax.figure)
+    assert cb.get_xlabel() == "time" or cb.get_ylabel() == "time"
+    plt.close(ax.figure)
+
+
+@pytest.mark.parametrize("tilt", [0.3, 1.2])
+def test_colorbar_clear_of_axis_labels(tilt: float) -> None:
+    # Rendered: the colour bar (with its ticks and label) overlaps none of
+    # the axis labels, the z label in particular.
+    ax = filament_snapshots(_tilted_rods(tilt), np.linspace(0, 1, 5))
+    fig = ax.figure
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    (cb,) = _colorbars(fig)
+    box = cb.get_tightbbox(r)
+    for lab in (ax.xaxis.label, ax.yaxis.label, ax.zaxis.label):
+        assert not lab.get_window_extent(r).overlaps(box), lab.get_text()
+    for t in ax.zaxis.get_ticklabels():
+        assert not t.get_window_extent(r).overlaps(box)
+    plt.close(fig)

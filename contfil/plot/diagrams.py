@@ -71,6 +71,36 @@ def _runs(flags: list[bool | None]) -> list[tuple[int, int, bool | None]]:
     return runs
 
 
+def _split_point(g: BranchGraph, bid: str, i: int, ps: NDArray[np.float64],
+                 ys: NDArray[np.float64], observable: str) -> tuple[float, float]:
+    """Where the stability of branch ``bid`` changes between samples ``i`` and ``i+1``.
+
+    The special point localised in that interval (edge ``index`` = ``i``, or
+    a neighbour when the engine counted from the other side, with its
+    parameter inside the interval) gives ``(p, observable)``; without one
+    (no event detection) the midpoint of the interval is used.
+    """
+    lo, hi = sorted((float(ps[i]), float(ps[i + 1])))
+    slack = 1e-9 * max(1.0, abs(lo), abs(hi))
+    best: tuple[int, float, float] | None = None
+    for sid in g.special_points_on(bid):
+        idx = int(g.g.edges[bid, sid]["index"])
+        sp = g.special_point(sid)
+        if abs(idx - i) > 1 or not lo - slack <= sp.point.p <= hi + slack:
+            continue
+        if best is None or abs(idx - i) < best[0]:
+            y = _values([sp.point], observable)[0]
+            if not np.isfinite(y) and hi > lo:
+                # No observable stored with the special point: interpolate.
+                y = float(np.interp(sp.point.p, [ps[i], ps[i + 1]], [ys[i], ys[i + 1]])
+                          if ps[i] < ps[i + 1] else
+                          np.interp(sp.point.p, [ps[i + 1], ps[i]], [ys[i + 1], ys[i]]))
+            best = (abs(idx - i), float(sp.point.p), float(y))
+    if best is not None:
+        return best[1], best[2]
+    return 0.5 * float(ps[i] + ps[i + 1]), 0.5 * float(ys[i] + ys[i + 1])
+
+
 def bifurcation_diagram(
     source: Source,
     observable: str | None = None,
@@ -82,6 +112,8 @@ def bifurcation_diagram(
 
     Stable stretches are solid, unstable ones dashed (unknown stability:
     dotted); special points are marked and labelled (``BP1``, ``H1``, ...).
+    A change of stability is drawn at the special point localised between
+    the two samples (the midpoint of the interval if none was localised).
     The default observable is the (period-mean) bending energy when present.
     """
     g = as_graph(source)
@@ -98,15 +130,25 @@ def bifurcation_diagram(
         ys = _values(br.points, obs)
         colour = _KIND_COLOURS.get(br.kind, "tab:gray")
         flags = [pt.stable for pt in br.points]
-        for i0, i1, st in _runs(flags):
-            # Overlap runs by one point so the curve has no gaps.
-            j1 = min(i1 + 1, len(ps) - 1)
+        runs = _runs(flags)
+        # Where stability changes between samples i and i+1, both runs end at
+        # the localised bifurcation (not at a sample), so the diagram shows
+        # the change where it happens.
+        cuts = {i1: _split_point(g, bid, i1, ps, ys, obs) for _, i1, _ in runs[:-1]}
+        for i0, i1, st in runs:
+            xs, yv = list(ps[i0:i1 + 1]), list(ys[i0:i1 + 1])
+            if i0 > 0:
+                xs.insert(0, cuts[i0 - 1][0])
+                yv.insert(0, cuts[i0 - 1][1])
+            if i1 < len(ps) - 1:
+                xs.append(cuts[i1][0])
+                yv.append(cuts[i1][1])
             style = "-" if st else ("--" if st is False else ":")
             label = None
             if br.kind not in seen_kinds:
                 label = br.kind.replace("_", " ")
                 seen_kinds.add(br.kind)
-            ax.plot(ps[i0:j1 + 1], ys[i0:j1 + 1], style, color=colour, lw=1.6, label=label)
+            ax.plot(xs, yv, style, color=colour, lw=1.6, label=label)
         ax.annotate(bid, (ps[-1], ys[-1]), fontsize=7, color=colour,
                     xytext=(3, 0), textcoords="offset points")
     for sid, sp in g.special_points.items():
@@ -141,7 +183,10 @@ def eigenvalue_plot(
 
     For cycle branches the Floquet multipliers ``mu`` are shown as Floquet
     exponents ``log(mu)/T`` (real part zero on the stability boundary), so
-    all kinds share one scale. Special points are marked with vertical lines.
+    all kinds share one scale. Each curve follows one value along the branch
+    (:func:`track_eigenvalues`), not the k-th in the stored order, so
+    crossing values do not zig-zag. Special points are marked with vertical
+    lines.
     Returns the two Axes (real part, imaginary part).
     """
     g = as_graph(source)
@@ -155,29 +200,34 @@ def eigenvalue_plot(
         br = g.branch(bid)
         param = br.param
         cycles = br.kind in ("periodic_orbit", "relative_periodic_orbit")
-        rows = []
-        for pt in br.points:
+        ps = br.parameter_values()
+        leading: list[NDArray[np.complex128] | None] = []
+        periods = np.ones(len(br.points))
+        for j, pt in enumerate(br.points):
             ev = pt.eigenvalues
             if ev is None:
-                rows.append(np.full(n, np.nan + 0j))
+                leading.append(None)
                 continue
             ev = np.asarray(ev, dtype=complex)
             if pt.trivial is not None and not include_trivial and len(pt.trivial) == len(ev):
                 ev = ev[~np.asarray(pt.trivial, dtype=bool)]
+            # The n leading values whatever the stored order: largest real
+            # part (cycles: largest modulus), where stability is decided.
+            key = -np.abs(ev) if cycles else -ev.real
+            leading.append(ev[np.argsort(key, kind="stable")][:n])
             if cycles:
-                # Floquet exponents log(mu)/T: comparable with eigenvalues of
-                # equilibria and rotating waves (same sign convention, units).
-                T = float(pt.extra.get("period", 1.0)) or 1.0
-                with np.errstate(divide="ignore"):
-                    ev = (np.log(np.abs(ev)) + 1j * np.angle(ev)) / T
-            row = np.full(n, np.nan + 0j)
-            row[: min(n, ev.size)] = ev[:n]
-            rows.append(row)
-        if not rows:
+                periods[j] = float(pt.extra.get("period", 1.0)) or 1.0
+        if not br.points:
             continue
-        E = np.array(rows)
-        lead.extend(E[:, : min(2, n)].real[np.isfinite(E[:, : min(2, n)].real)].tolist())
-        ps = br.parameter_values()
+        # Curves follow each value from point to point; multipliers of cycles
+        # are matched as stored (on the complex plane, no branch cut).
+        E = track_eigenvalues(leading, n, ps)
+        if cycles:
+            # Floquet exponents log(mu)/T: comparable with eigenvalues of
+            # equilibria and rotating waves (same sign convention, units).
+            with np.errstate(divide="ignore", invalid="ignore"):
+                E = (np.log(np.abs(E)) + 1j * np.angle(E)) / periods[:, None]
+        lead.extend(_leading_real(leading, periods if cycles else None))
         colour = _KIND_COLOURS.get(br.kind, "tab:gray")
         for k in range(n):
             lab = f"{bid} ({br.kind.replace('_', ' ')})" if k == 0 else None
@@ -202,6 +252,83 @@ def eigenvalue_plot(
     if ids:
         ax_re.legend(fontsize=7, frameon=False)
     return ax_re, ax_im
+
+
+def track_eigenvalues(
+    values: list[NDArray[np.complex128] | None],
+    n: int,
+    p: NDArray[np.float64] | None = None,
+) -> NDArray[np.complex128]:
+    """Sort the eigenvalues of consecutive points into ``n`` continuous curves.
+
+    Parameters
+    ----------
+    values:
+        Per point, its (leading) eigenvalues in any order, or ``None``.
+    n:
+        Number of curves.
+    p:
+        Parameter values of the points; the predictor uses them for uneven
+        steps (default: even steps).
+
+    Returns
+    -------
+    ``(len(values), n)`` complex array; ``nan`` where a curve has no value.
+
+    Notes
+    -----
+    Each point's values are assigned to the curves by a minimum-total-distance
+    matching (``scipy.optimize.linear_sum_assignment``) against a secant
+    prediction from the two previous points, so two curves that cross keep
+    their identity instead of swapping at the crossing.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    m = len(values)
+    pp = np.arange(m, dtype=float) if p is None else np.asarray(p, dtype=float)
+    out = np.full((m, n), np.nan + 0j)
+    last: list[list[tuple[float, complex]]] = [[] for _ in range(n)]  # (p, value) history
+    for k, ev in enumerate(values):
+        if ev is None or np.size(ev) == 0:
+            continue
+        cand = np.asarray(ev, dtype=complex)[:n]
+        if not any(last):
+            out[k, : cand.size] = cand
+        else:
+            pred = np.full(n, np.nan + 0j)
+            for j, hist in enumerate(last):
+                if len(hist) >= 2 and hist[-1][0] != hist[-2][0]:
+                    (p1, v1), (p2, v2) = hist[-2], hist[-1]
+                    pred[j] = v2 + (v2 - v1) * (pp[k] - p2) / (p2 - p1)
+                elif hist:
+                    pred[j] = hist[-1][1]
+            scale = float(np.nanmax(np.abs(np.concatenate([cand, pred[np.isfinite(pred)]]))))
+            big = 1e3 * (scale + 1.0)
+            cost = np.abs(pred[:, None] - cand[None, :])
+            cost[~np.isfinite(cost)] = big  # empty curves take what is left
+            # Ties (e.g. equal values) go to the stored order.
+            cost += 1e-9 * (scale + 1.0) * np.abs(
+                np.arange(n)[:, None] - np.arange(cand.size)[None, :])
+            rows, cols = linear_sum_assignment(cost)
+            out[k, rows] = cand[cols]
+        for j in range(n):
+            if np.isfinite(out[k, j]):
+                last[j] = (last[j] + [(float(pp[k]), complex(out[k, j]))])[-2:]
+    return out
+
+
+def _leading_real(values: list[NDArray[np.complex128] | None],
+                  periods: NDArray[np.float64] | None) -> list[float]:
+    """Real parts (cycles: log|mu|/T) of the two leading values of each point."""
+    out: list[float] = []
+    for j, ev in enumerate(values):
+        if ev is None:
+            continue
+        v = np.asarray(ev, dtype=complex)[:2]
+        with np.errstate(divide="ignore"):
+            re = v.real if periods is None else np.log(np.abs(v)) / periods[j]
+        out.extend(float(x) for x in re if np.isfinite(x))
+    return out
 
 
 def save_run_plots(source: Source, out_dir: str | Path | None = None,

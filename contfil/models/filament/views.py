@@ -23,6 +23,7 @@ def filament_snapshots(
     tip_path: bool = True,
     cmap: str = "viridis",
     tip_positions: NDArray[np.float64] | None = None,
+    colorbar: bool | None = None,
 ) -> Axes:
     """Filament centrelines in 3D coloured by time, with shadows and the tip path.
 
@@ -42,6 +43,12 @@ def filament_snapshots(
     tip_positions:
         ``(m, 3)`` tip positions sampled more finely than the snapshots
         (e.g. every time step); default: the last point of each snapshot.
+    colorbar:
+        Add a time colour bar; default: only when there is more than one
+        snapshot (a single shape has no time scale to show).
+
+    The axes have equal aspect: a unit of length is drawn equally long in
+    x, y and z.
     """
     X = np.asarray(positions, dtype=float)
     if X.ndim != 3 or X.shape[2] != 3:
@@ -67,15 +74,27 @@ def filament_snapshots(
         ax.plot(tp[:, 0], tp[:, 1], tp[:, 2], color="k", lw=0.8, ls="--")
         if shadow:
             ax.plot(tp[:, 0], tp[:, 1], np.full(len(tp), z0), color="0.3", lw=0.6, ls=":")
-    r = float(np.max(np.abs(X[..., :2]))) or 1.0
+    z1 = max(float(X[..., 2].max()), z0 + 1e-9)
+    # A square horizontal window about the axis, at least a tenth of the
+    # height wide so a near-upright filament is not drawn as a needle.
+    r = max(float(np.max(np.abs(X[..., :2]))), 0.1 * (z1 - z0), 1e-9)
     ax.set_xlim(-r, r)
     ax.set_ylim(-r, r)
-    ax.set_zlim(z0, max(float(X[..., 2].max()), z0 + 1e-9))
+    ax.set_zlim(z0, z1)
+    # Equal aspect: box sides proportional to the data ranges, so one unit
+    # of length is drawn the same in x, y and z (matplotlib's default cube
+    # stretches the horizontal directions of a tall filament).
+    ax.set_box_aspect((2 * r, 2 * r, z1 - z0))
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_zlabel("z")
-    sm = plt.cm.ScalarMappable(cmap=cm, norm=plt.Normalize(float(t.min()), float(t.max())))
-    ax.figure.colorbar(sm, ax=ax, shrink=0.6, label="time")
+    if colorbar is None:
+        colorbar = nt > 1
+    if colorbar:
+        sm = plt.cm.ScalarMappable(cmap=cm, norm=plt.Normalize(float(t.min()), float(t.max())))
+        # pad: clear of the z tick labels and the z label, which matplotlib
+        # draws to the right of a 3-D box.
+        ax.figure.colorbar(sm, ax=ax, shrink=0.6, pad=0.1, label="time", location="bottom")
     return ax
 
 
