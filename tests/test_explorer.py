@@ -133,7 +133,7 @@ def test_hopf_cycles_on_exact_circle() -> None:
     assert abs(g.special_point("S0").point.p) < 1e-8
     cyc = g.branch("B1")
     assert cyc.kind == "periodic_orbit" and len(cyc.points) >= 3
-    assert g.connected("B0") == [("B1", "S0")]
+    assert g.connected("B0") == [("B1", "H1")]  # named by label, as in plots
     for pt in cyc.points:
         assert pt.p > 0  # supercritical: cycles exist for mu > 0
         assert abs(np.linalg.norm(pt.u) - np.sqrt(pt.p)) < 1e-5
@@ -172,7 +172,7 @@ def test_filament_upright_double_hopf_whirling(tmp_path) -> None:
         if abs(pt.p - p_dh) > 1e-3:
             assert pt.stable == (pt.p < p_dh)
     rw = [b for b in g.branches if g.branch(b).kind == "rotating_wave"]
-    assert len(rw) == 1 and (dh[0], rw[0]) in [(s, b) for b, s in g.connected("B0")]
+    assert len(rw) == 1 and (g.label(dh[0]), rw[0]) in [(s, b) for b, s in g.connected("B0")]
     whirl = g.branch(rw[0])
     assert whirl.points[0].stable  # whirling is stable at birth
     assert all(abs(pt.extra["omega"]) > 1.0 for pt in whirl.points)

@@ -155,7 +155,13 @@ def test_graph_structure_and_queries() -> None:
     assert g.g.nodes[s0]["label"] == "BP1" and g.g.nodes[s0]["switchable"]
     assert g.g.nodes[st]["switchable"] is False  # torus: kept, not switchable
     assert set(g.branches_at(s0)) == {b0, b1}
-    assert g.connected(b0) == [(b1, s0)]
+    # Connections name the special point by its label, as plots and the
+    # summary do; the label and the id both reach it.
+    assert g.connected(b0) == [(b1, "BP1")]
+    assert g.label(s0) == "BP1" and g.special_id("BP1") == s0
+    assert g.special_point("BP1") is g.special_point(s0)
+    assert set(g.branches_at("BP1")) == {b0, b1}
+    assert g.connected(b1) == [(b0, "BP1")]
     # A second route to the same branch adds no branch, counts the route.
     dup, is_new = g.add_branch(_parabola(np.linspace(0.05, 0.9, 9)))
     assert (dup, is_new) == (b1, False)
@@ -212,3 +218,72 @@ def test_graphml_round_trip(tmp_path) -> None:
     assert nx.utils.graphs_equal(G, flat)
     assert G.graph == flat.graph
     _assert_same(g, BranchGraph.load_graphml(path))
+
+
+def test_graphml_attributes_typed(tmp_path) -> None:
+    import re
+
+    g, b0, b1, st = _two_branch_graph()
+    path = save_graph_graphml(g, tmp_path / "g.graphml")
+    text = path.read_text()
+    # Declared GraphML types: scalars keep theirs, structured values are strings.
+    declared = {(m[1], m[2]): m[3] for m in re.finditer(
+        r'<key id="\w+" for="(\w+)" attr.name="([^"]+)" attr.type="(\w+)"', text)}
+    expect = {("node", "n_points"): "long", ("node", "n_stable_points"): "long",
+              ("node", "p_min"): "double", ("node", "p_max"): "double",
+              ("node", "p"): "double", ("node", "switchable"): "boolean",
+              ("node", "switched"): "boolean", ("node", "stable"): "boolean",
+              ("node", "kind"): "string", ("node", "label"): "string",
+              ("node", "data"): "string", ("node", "stability"): "string",
+              ("edge", "index"): "long", ("edge", "routes"): "long",
+              ("edge", "role"): "string", ("graph", "name"): "string",
+              ("graph", "range"): "string", ("graph", "contfil_format"): "string"}
+    for k, t in expect.items():
+        assert declared[k] == t, k
+    # Plain networkx reads the types back.
+    G = nx.read_graphml(path)
+    a, sp, e = G.nodes[b0], G.nodes[st], G.edges[b0, g.special_id("BP1")]
+    assert type(a["n_points"]) is int and a["n_points"] == 21
+    assert type(a["p_min"]) is float and a["p_min"] == -1.0
+    assert type(sp["switchable"]) is bool and sp["switchable"] is False
+    assert type(e["index"]) is int and e["index"] == 10
+    assert G.graph["contfil_format"] == "contfil-graphml/1"
+    # The documented array encoding, decoded with json alone.
+    assert G.graph["range"] == "json:[-1.0, 1.0]"
+    assert json.loads(a["stability"][5:]) == [[0, 10, 0], [11, 20, 1]]
+    rec = json.loads(G.nodes[b1]["data"][len("json:"):])
+    pt = rec["points"][4]
+    ref = g.point(b1, 4)
+    assert pt["u"] == {"__array__": True, "data": ref.u.tolist()}
+    assert pt["eigenvalues"]["__complex__"] is True
+    np.testing.assert_array_equal(np.array(pt["eigenvalues"]["re"])
+                                  + 1j * np.array(pt["eigenvalues"]["im"]), ref.eigenvalues)
+    assert pt["p"] == ref.p and pt["n_unstable"] == ref.n_unstable
+    # A complex array in special-point data (torus multipliers) round-trips.
+    back = BranchGraph.load_graphml(path)
+    np.testing.assert_array_equal(back.special_point(st).data["multipliers"], [1j, -1j])
+    _assert_same(g, back)
+
+
+def test_graphml_one_type_per_attribute(tmp_path) -> None:
+    # A name holding ints on some nodes and floats on others is declared once,
+    # as double (GraphML allows one type per key).
+    g, b0, b1, _ = _two_branch_graph()
+    g.g.nodes[b0]["weight"] = 2
+    g.g.nodes[b1]["weight"] = 2.5
+    text = g.to_graphml_text()
+    assert text.count('attr.name="weight"') == 1 and 'attr.type="double"' in text
+    G = nx.parse_graphml(text)
+    assert G.nodes[b0]["weight"] == 2.0 and type(G.nodes[b0]["weight"]) is float
+
+
+def test_graphml_unknown_encoding_is_refused(tmp_path) -> None:
+    import pytest
+
+    from contfil.errors import ContfilError
+
+    g, *_ = _two_branch_graph()
+    path = tmp_path / "g.graphml"
+    path.write_text(g.to_graphml_text().replace("contfil-graphml/1", "contfil-graphml/9"))
+    with pytest.raises(ContfilError, match="contfil-graphml/9"):
+        BranchGraph.load_graphml(path)

@@ -273,3 +273,24 @@ def test_colorbar_clear_of_axis_labels(tilt: float) -> None:
     for t in ax.zaxis.get_ticklabels():
         assert not t.get_window_extent(r).overlaps(box)
     plt.close(fig)
+
+
+def test_small_floquet_multipliers_tracked_by_their_logarithm() -> None:
+    # Strongly damped multipliers all sit within 1e-12 of 0 on the complex
+    # plane; tracking through log(mu) still separates the two that cross
+    # (exponents -40 + 10 p and -30 - 10 p) from the complex pair.
+    rng = np.random.default_rng(3)
+    ps = np.linspace(0.0, 1.0, 17)
+    exact = np.array([[-40 + 10 * p, -30 - 10 * p, -45 + 2j, -45 - 2j] for p in ps])
+    pts = [Point(u=np.zeros(1), p=p, params=np.array([p]), kind="periodic_orbit",
+                 extra={"period": 1.0}, eigenvalues=rng.permutation(np.exp(lam)), n_unstable=0)
+           for p, lam in zip(ps, exact, strict=True)]
+    g = BranchGraph()
+    g.add_branch(Branch("periodic_orbit", "mu", pts))
+    ax_re, ax_im = eigenvalue_plot(g, n=4)
+    got = sorted(tuple(np.round(ln.get_ydata()[[0, -1]], 9)) for ln in ax_re.lines[:4])
+    assert got == sorted([(-40.0, -30.0), (-30.0, -40.0), (-45.0, -45.0), (-45.0, -45.0)])
+    for ln, im in zip(ax_re.lines[:4], ax_im.lines[:4], strict=True):
+        c = ln.get_ydata() + 1j * im.get_ydata()
+        assert min(np.max(np.abs(c - exact[:, k])) for k in range(4)) < 1e-9
+    plt.close(ax_re.figure)

@@ -31,9 +31,21 @@ its data over several edges; branches that end without a bifurcation (range
 limit, step failure) would need artificial end nodes; and "which states are
 connected to this one and through which bifurcation" is a two-hop
 neighbourhood here (:meth:`BranchGraph.connected`). The segment view is one
-projection away (:meth:`BranchGraph.state_graph`). Exports need scalar
-attributes only for GraphML; array-valued data are serialised to JSON
-strings there (:meth:`BranchGraph.to_networkx` with ``flat=True``).
+projection away (:meth:`BranchGraph.state_graph`).
+
+Special points have an id (``S0``, ``S1``, ... in order of detection) and a
+label as in AUTO/MatCont diagrams (``DH1``, ``BP2``, ...); the label is what
+plots, :meth:`BranchGraph.summary` and :meth:`BranchGraph.connected` show,
+and every query accepts either.
+
+GraphML export (:meth:`BranchGraph.to_networkx` with ``flat=True``, see
+``GRAPHML_FORMAT``): scalar attributes keep their type (GraphML ``long``,
+``double``, ``boolean``, ``string``); everything else (arrays, lists, the
+per-branch ``data`` record) is a ``string`` holding ``json:`` followed by
+JSON text, in which a real array is ``{"__array__": true, "data": [...]}``
+and a complex array or number ``{"__complex__": true, "re": ..., "im": ...}``
+(the encoding of :mod:`contfil.engine.branch`, shared with ``graph.json``
+and the task logs). docs/user-guide.md, "GraphML attributes", documents it.
 """
 
 from __future__ import annotations
@@ -81,9 +93,12 @@ SP_LABELS = {
 # Kinds no switching method exists for (yet): kept as dead-end nodes.
 NOT_SWITCHABLE = frozenset({TORUS, ENDPOINT})
 
-# Attributes whose values are structured (dicts/lists) and become JSON strings
-# in the flat (GraphML) form.
-_STRUCTURED = ("data", "stability", "meta")
+#: Graph attribute ``contfil_format`` of a GraphML export: names the
+#: attribute encoding described in the module docstring (bump on change).
+GRAPHML_FORMAT = "contfil-graphml/1"
+
+#: Prefix of a GraphML string attribute that holds JSON text.
+JSON_PREFIX = "json:"
 
 
 def stability_runs(branch: Branch) -> list[list[int]]:
@@ -165,11 +180,22 @@ class BranchGraph:
             raise ContfilError(f"no branch {bid!r}; known: {list(self._branches)}") from None
 
     def special_point(self, sid: str) -> SpecialPoint:
-        """The special point with id ``sid``."""
-        try:
-            return self._sps[sid]
-        except KeyError:
-            raise ContfilError(f"no special point {sid!r}; known: {list(self._sps)}") from None
+        """The special point with id (``S0``) or label (``DH1``) ``sid``."""
+        return self._sps[self.special_id(sid)]
+
+    def special_id(self, ref: str) -> str:
+        """The node id of the special point with id or label ``ref``."""
+        if ref in self._sps:
+            return ref
+        for sid in self._sps:
+            if self.g.nodes[sid].get("label") == ref:
+                return sid
+        known = [f"{s} ({self.g.nodes[s].get('label')})" for s in self._sps]
+        raise ContfilError(f"no special point {ref!r}; known: {known}")
+
+    def label(self, sid: str) -> str:
+        """The label (``DH1``, ``BP2``, ...) of special point ``sid`` (id or label)."""
+        return str(self.g.nodes[self.special_id(sid)]["label"])
 
     def point(self, bid: str, index: int) -> Point:
         """Point ``index`` of branch ``bid``: state, parameters, tangent and
@@ -285,18 +311,25 @@ class BranchGraph:
         return [s for _, s in sorted(out)]
 
     def branches_at(self, sid: str) -> list[str]:
-        """All branches meeting at special point ``sid`` (detected on or born there)."""
+        """All branches meeting at special point ``sid`` (id or label; detected
+        on or born there)."""
+        sid = self.special_id(sid)
         on = [b for b, _ in self.g.in_edges(sid)]
         born = [b for _, b in self.g.out_edges(sid)]
         return list(dict.fromkeys(on + born))
 
     def connected(self, bid: str) -> list[tuple[str, str]]:
-        """States connected to ``bid``: ``[(other_branch, via_special_point), ...]``."""
+        """States connected to ``bid``: ``[(other_branch, special_point_label), ...]``.
+
+        The special point is named by its label (``DH1``), as in the plots and
+        the summary; :meth:`special_point` and :meth:`special_id` take it.
+        """
         out = []
         for sid in self.special_points_on(bid) + [s for s, _ in self.g.in_edges(bid)]:
+            lab = self.label(sid)
             for other in self.branches_at(sid):
-                if other != bid and (other, sid) not in out:
-                    out.append((other, sid))
+                if other != bid and (other, lab) not in out:
+                    out.append((other, lab))
         return out
 
     def state_graph(self) -> nx.MultiGraph:
@@ -345,8 +378,11 @@ class BranchGraph:
         """A self-contained networkx graph carrying all data.
 
         ``flat=False``: attributes are JSON-compatible (nested dicts/lists),
-        for node-link JSON. ``flat=True``: only scalars (str/int/float/bool),
-        structured data serialised as JSON strings, for GraphML.
+        for node-link JSON. ``flat=True``, for GraphML: scalars keep their
+        Python type (``str``/``int``/``float``/``bool``, so GraphML declares
+        ``string``/``long``/``double``/``boolean``), every other value becomes
+        a ``json:``-prefixed JSON string, and the graph attribute
+        ``contfil_format`` names this encoding (:data:`GRAPHML_FORMAT`).
         """
         G = nx.DiGraph()
         G.graph.update(_json_safe(self.meta))
@@ -363,6 +399,7 @@ class BranchGraph:
             G.add_edge(u, v, **_json_safe(dict(attrs)))
         if flat:
             _flatten(G)
+            G.graph["contfil_format"] = GRAPHML_FORMAT
         return G
 
     @classmethod
@@ -373,7 +410,12 @@ class BranchGraph:
         """Rebuild from :meth:`to_networkx` output (flat or not)."""
         G = G.copy()
         _unflatten(G)
-        meta = {k: v for k, v in G.graph.items() if k not in ("node_default", "edge_default")}
+        fmt = G.graph.get("contfil_format", GRAPHML_FORMAT)
+        if fmt != GRAPHML_FORMAT:
+            raise ContfilError(f"graph attribute encoding {fmt!r} is not supported "
+                               f"(this version reads {GRAPHML_FORMAT!r})")
+        meta = {k: v for k, v in G.graph.items()
+                if k not in ("node_default", "edge_default", "contfil_format")}
         bg = cls(symmetries=symmetries, tol=tol, meta=meta)
         for n, a in G.nodes(data=True):
             n = str(n)
@@ -410,7 +452,7 @@ class BranchGraph:
                                                     edges="edges"), symmetries)
 
     def to_graphml_text(self) -> str:
-        """GraphML text (scalar attributes; arrays as JSON strings)."""
+        """GraphML text: typed scalar attributes, everything else ``json:`` strings."""
         return "\n".join(nx.generate_graphml(self.to_networkx(flat=True)))
 
     @classmethod
@@ -436,28 +478,35 @@ def _json_safe(a: dict[str, Any]) -> dict[str, Any]:
 
 
 def _flatten(G: nx.DiGraph) -> None:
-    """Make every attribute a GraphML scalar: structured values -> JSON strings."""
+    """Make every attribute a typed GraphML scalar; other values -> ``json:`` strings.
 
-    def flat(d: dict[str, Any]) -> None:
+    One attribute name has one type in GraphML: where a name holds both
+    integers and floats, the integers are written as floats.
+    """
+    groups = [G.graph] + [a for _, a in G.nodes(data=True)] + [a for *_, a in G.edges(data=True)]
+    for d in groups:
         for k in list(d):
             v = d[k]
             if v is None:
                 del d[k]  # GraphML has no null
-            elif isinstance(v, dict | list | tuple):
-                d[k] = "json:" + json.dumps(v, allow_nan=True)
-
-    flat(G.graph)
-    for _, a in G.nodes(data=True):
-        flat(a)
-    for _, _, a in G.edges(data=True):
-        flat(a)
+            elif isinstance(v, np.generic):
+                d[k] = v.item()
+            elif not isinstance(v, str | bool | int | float):
+                d[k] = JSON_PREFIX + json.dumps(encode(v), allow_nan=True)
+    for scope in ([G.graph], [a for _, a in G.nodes(data=True)],
+                  [a for *_, a in G.edges(data=True)]):
+        floats = {k for d in scope for k, v in d.items() if isinstance(v, float)}
+        for d in scope:
+            for k in floats & set(d):
+                if isinstance(d[k], int) and not isinstance(d[k], bool):
+                    d[k] = float(d[k])
 
 
 def _unflatten(G: nx.Graph) -> None:
     def unflat(d: dict[str, Any]) -> None:
         for k, v in list(d.items()):
-            if isinstance(v, str) and v.startswith("json:"):
-                d[k] = json.loads(v[5:])
+            if isinstance(v, str) and v.startswith(JSON_PREFIX):
+                d[k] = json.loads(v[len(JSON_PREFIX):])
 
     unflat(G.graph)
     for _, a in G.nodes(data=True):

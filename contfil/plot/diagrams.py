@@ -219,9 +219,8 @@ def eigenvalue_plot(
                 periods[j] = float(pt.extra.get("period", 1.0)) or 1.0
         if not br.points:
             continue
-        # Curves follow each value from point to point; multipliers of cycles
-        # are matched as stored (on the complex plane, no branch cut).
-        E = track_eigenvalues(leading, n, ps)
+        # Curves follow each value from point to point (cycles: by log(mu)).
+        E = track_eigenvalues(leading, n, ps, multipliers=cycles)
         if cycles:
             # Floquet exponents log(mu)/T: comparable with eigenvalues of
             # equilibria and rotating waves (same sign convention, units).
@@ -258,6 +257,7 @@ def track_eigenvalues(
     values: list[NDArray[np.complex128] | None],
     n: int,
     p: NDArray[np.float64] | None = None,
+    multipliers: bool = False,
 ) -> NDArray[np.complex128]:
     """Sort the eigenvalues of consecutive points into ``n`` continuous curves.
 
@@ -270,10 +270,16 @@ def track_eigenvalues(
     p:
         Parameter values of the points; the predictor uses them for uneven
         steps (default: even steps).
+    multipliers:
+        The values are Floquet multipliers: they are compared through
+        ``log(mu)`` with the angle taken modulo 2 pi (so small multipliers,
+        all close to 0 on the complex plane, are still told apart by their
+        size, and a pair turning past -1 is not cut).
 
     Returns
     -------
-    ``(len(values), n)`` complex array; ``nan`` where a curve has no value.
+    ``(len(values), n)`` complex array of the given values; ``nan`` where a
+    curve has no value.
 
     Notes
     -----
@@ -284,36 +290,54 @@ def track_eigenvalues(
     """
     from scipy.optimize import linear_sum_assignment
 
+    def to_z(v: NDArray[np.complex128]) -> NDArray[np.complex128]:
+        if not multipliers:
+            return v
+        tiny = np.finfo(float).tiny
+        return np.log(np.maximum(np.abs(v), tiny)) + 1j * np.angle(v)
+
+    def diff(a: NDArray[np.complex128], b: NDArray[np.complex128]) -> NDArray[np.complex128]:
+        d = a - b
+        if multipliers:  # angles modulo 2 pi
+            d = d.real + 1j * (np.mod(d.imag + np.pi, 2 * np.pi) - np.pi)
+        return d
+
     m = len(values)
     pp = np.arange(m, dtype=float) if p is None else np.asarray(p, dtype=float)
     out = np.full((m, n), np.nan + 0j)
-    last: list[list[tuple[float, complex]]] = [[] for _ in range(n)]  # (p, value) history
+    # Per curve, its last two (p, z) with z continued (angles unwrapped).
+    last: list[list[tuple[float, complex]]] = [[] for _ in range(n)]
     for k, ev in enumerate(values):
         if ev is None or np.size(ev) == 0:
             continue
         cand = np.asarray(ev, dtype=complex)[:n]
+        zc = to_z(cand)
         if not any(last):
             out[k, : cand.size] = cand
+            assigned = {j: j for j in range(cand.size)}
         else:
             pred = np.full(n, np.nan + 0j)
             for j, hist in enumerate(last):
                 if len(hist) >= 2 and hist[-1][0] != hist[-2][0]:
-                    (p1, v1), (p2, v2) = hist[-2], hist[-1]
-                    pred[j] = v2 + (v2 - v1) * (pp[k] - p2) / (p2 - p1)
+                    (p1, z1), (p2, z2) = hist[-2], hist[-1]
+                    pred[j] = z2 + (z2 - z1) * (pp[k] - p2) / (p2 - p1)
                 elif hist:
                     pred[j] = hist[-1][1]
-            scale = float(np.nanmax(np.abs(np.concatenate([cand, pred[np.isfinite(pred)]]))))
-            big = 1e3 * (scale + 1.0)
-            cost = np.abs(pred[:, None] - cand[None, :])
-            cost[~np.isfinite(cost)] = big  # empty curves take what is left
-            # Ties (e.g. equal values) go to the stored order.
+            cost = np.abs(diff(pred[:, None], zc[None, :]))
+            finite = cost[np.isfinite(cost)]
+            scale = float(finite.max()) if finite.size else 1.0
+            cost[~np.isfinite(cost)] = 1e3 * (scale + 1.0)  # empty curves take what is left
+            # Ties (e.g. equal values) go to the given order.
             cost += 1e-9 * (scale + 1.0) * np.abs(
                 np.arange(n)[:, None] - np.arange(cand.size)[None, :])
             rows, cols = linear_sum_assignment(cost)
             out[k, rows] = cand[cols]
-        for j in range(n):
-            if np.isfinite(out[k, j]):
-                last[j] = (last[j] + [(float(pp[k]), complex(out[k, j]))])[-2:]
+            assigned = dict(zip(rows.tolist(), cols.tolist(), strict=True))
+        for j, c in assigned.items():
+            z = complex(zc[c])
+            if last[j]:
+                z = complex(last[j][-1][1] + diff(np.array([z]), np.array([last[j][-1][1]]))[0])
+            last[j] = (last[j] + [(float(pp[k]), z)])[-2:]
     return out
 
 

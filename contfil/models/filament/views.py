@@ -12,6 +12,7 @@ from typing import Any
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.axes import Axes
+from matplotlib.ticker import MaxNLocator
 from numpy.typing import NDArray
 
 
@@ -24,6 +25,7 @@ def filament_snapshots(
     cmap: str = "viridis",
     tip_positions: NDArray[np.float64] | None = None,
     colorbar: bool | None = None,
+    colorbar_label: str = "time",
 ) -> Axes:
     """Filament centrelines in 3D coloured by time, with shadows and the tip path.
 
@@ -46,6 +48,8 @@ def filament_snapshots(
     colorbar:
         Add a time colour bar; default: only when there is more than one
         snapshot (a single shape has no time scale to show).
+    colorbar_label:
+        Its label (e.g. ``"phase"`` when ``times`` are phases of a mode).
 
     The axes have equal aspect: a unit of length is drawn equally long in
     x, y and z.
@@ -85,6 +89,8 @@ def filament_snapshots(
     # of length is drawn the same in x, y and z (matplotlib's default cube
     # stretches the horizontal directions of a tall filament).
     ax.set_box_aspect((2 * r, 2 * r, z1 - z0))
+    for axis in (ax.xaxis, ax.yaxis):  # a narrow box has room for few tick labels
+        axis.set_major_locator(MaxNLocator(nbins=4))
     ax.set_xlabel("x")
     ax.set_ylabel("y")
     ax.set_zlabel("z")
@@ -94,7 +100,8 @@ def filament_snapshots(
         sm = plt.cm.ScalarMappable(cmap=cm, norm=plt.Normalize(float(t.min()), float(t.max())))
         # pad: clear of the z tick labels and the z label, which matplotlib
         # draws to the right of a 3-D box.
-        ax.figure.colorbar(sm, ax=ax, shrink=0.6, pad=0.1, label="time", location="bottom")
+        ax.figure.colorbar(sm, ax=ax, shrink=0.6, pad=0.1, label=colorbar_label,
+                            location="bottom")
     return ax
 
 
