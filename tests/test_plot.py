@@ -294,3 +294,20 @@ def test_small_floquet_multipliers_tracked_by_their_logarithm() -> None:
         c = ln.get_ydata() + 1j * im.get_ydata()
         assert min(np.max(np.abs(c - exact[:, k])) for k in range(4)) < 1e-9
     plt.close(ax_re.figure)
+
+
+def test_stability_change_at_a_fold_is_drawn_at_the_fold() -> None:
+    # A fold: p = 1 - x^2 along the branch (state x); the fold at p = 1 lies
+    # beyond both neighbouring samples' p; the lower half (x < 0) is stable.
+    s = np.linspace(-1.0, 1.0, 10)  # no sample at the fold s = 0
+    pts = [Point(u=np.array([si]), p=1 - si**2, params=np.array([1 - si**2]),
+                 n_unstable=int(si > 0), observables={"x": si}) for si in s]
+    g = BranchGraph()
+    b, _ = g.add_branch(Branch("equilibrium", "mu", pts))
+    fold = Point(u=np.zeros(1), p=1.0, params=np.array([1.0]), observables={"x": 0.0})
+    g.add_special_point(b, SpecialPoint("fold", fold, 4, {}))
+    ax = bifurcation_diagram(g, observable="x", legend=False)
+    solid, dashed = ax.lines[0], ax.lines[1]
+    assert (solid.get_xdata()[-1], solid.get_ydata()[-1]) == (1.0, 0.0)
+    assert (dashed.get_xdata()[0], dashed.get_ydata()[0]) == (1.0, 0.0)
+    plt.close(ax.figure)

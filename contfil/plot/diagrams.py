@@ -75,10 +75,11 @@ def _split_point(g: BranchGraph, bid: str, i: int, ps: NDArray[np.float64],
                  ys: NDArray[np.float64], observable: str) -> tuple[float, float]:
     """Where the stability of branch ``bid`` changes between samples ``i`` and ``i+1``.
 
-    The special point localised in that interval (edge ``index`` = ``i``, or
-    a neighbour when the engine counted from the other side, with its
-    parameter inside the interval) gives ``(p, observable)``; without one
-    (no event detection) the midpoint of the interval is used.
+    The special point localised in that interval gives ``(p, observable)``:
+    the one with edge ``index`` = ``i`` (at a fold its parameter lies outside
+    the interval's), else a neighbour ``i - 1`` or ``i + 1`` whose parameter
+    lies inside the interval. Without one (no event detection) the midpoint
+    of the interval is used.
     """
     lo, hi = sorted((float(ps[i]), float(ps[i + 1])))
     slack = 1e-9 * max(1.0, abs(lo), abs(hi))
@@ -86,11 +87,12 @@ def _split_point(g: BranchGraph, bid: str, i: int, ps: NDArray[np.float64],
     for sid in g.special_points_on(bid):
         idx = int(g.g.edges[bid, sid]["index"])
         sp = g.special_point(sid)
-        if abs(idx - i) > 1 or not lo - slack <= sp.point.p <= hi + slack:
+        inside = lo - slack <= sp.point.p <= hi + slack
+        if idx != i and (abs(idx - i) > 1 or not inside):
             continue
         if best is None or abs(idx - i) < best[0]:
             y = _values([sp.point], observable)[0]
-            if not np.isfinite(y) and hi > lo:
+            if not np.isfinite(y) and hi > lo and inside:
                 # No observable stored with the special point: interpolate.
                 y = float(np.interp(sp.point.p, [ps[i], ps[i + 1]], [ys[i], ys[i + 1]])
                           if ps[i] < ps[i + 1] else
