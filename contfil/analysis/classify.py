@@ -12,9 +12,13 @@ A long run (up to ~10^6 steps) is reduced on the fly to bounded evidence:
   uniform reservoir (Vitter's algorithm R) and to a ring of the most recent
   ones, which is what the distinct-point count uses (late points, after any
   slow approach to the attractor);
-- a spectrum of the observable from a buffer of bounded length, decimated by
-  block means (a boxcar anti-alias filter) with a stride fixed by the run
-  length;
+- a spectrum of the observable by streaming Welch averaging: samples
+  (optionally decimated by block means, a boxcar anti-alias filter, with a
+  user stride) fill one segment buffer of bounded length; each full segment
+  (Hann window, 50 % overlap) adds its periodogram to a running sum. The
+  resolution is set by the segment length, not by the run length, so a long
+  run averages more segments instead of decimating harder (which would alias
+  the higher frequencies into false peaks);
 - optionally the largest Lyapunov exponent (:mod:`contfil.analysis.lyapunov`)
   continued from the final state.
 
@@ -48,7 +52,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.signal import find_peaks, welch
+from scipy.signal import find_peaks, get_window
 
 from contfil.analysis.lyapunov import LyapunovResult, largest_lyapunov
 from contfil.errors import NonFiniteError, SpecError
@@ -251,18 +255,61 @@ def integer_combinations(
     return np.array([f1, f2]), expl
 
 
-def _spectrum(buf: Vec, sample_dt: float) -> SpectrumEvidence | None:
-    n = buf.shape[0]
-    if n < 64:
+class _StreamingWelch:
+    """Welch periodogram accumulated segment by segment, O(nperseg) memory."""
+
+    def __init__(self, nperseg: int, dim: int, stride: int) -> None:
+        self.nper = nperseg
+        self.buf = np.empty((nperseg, dim))
+        self.n = 0
+        self.stride = stride
+        self.acc = np.zeros(dim)
+        self.n_acc = 0
+        self.win = get_window("hann", nperseg)
+        self.sum = np.zeros(nperseg // 2 + 1)
+        self.count = 0
+
+    def push(self, o: Vec) -> None:
+        self.acc += o
+        self.n_acc += 1
+        if self.n_acc < self.stride:
+            return
+        self.buf[self.n] = self.acc / self.stride
+        self.acc[:] = 0.0
+        self.n_acc = 0
+        self.n += 1
+        if self.n == self.nper:
+            # Per-segment mean removal: a segment holding a non-integer
+            # number of periods has a mean whose window lobe would pose as a
+            # low peak.
+            x = self.buf - self.buf.mean(axis=0)
+            X = np.fft.rfft(self.win[:, None] * x, axis=0)
+            self.sum += np.sum(np.abs(X) ** 2, axis=1)
+            self.count += 1
+            half = self.nper // 2
+            self.buf[:half] = self.buf[half:]
+            self.n = half
+
+    def psd(self, sample_dt: float) -> tuple[Vec, Vec] | None:
+        if self.count == 0:
+            return None
+        # "spectrum" scaling (power per bin, sinusoid amplitude A -> A^2/2
+        # after the one-sided fold), averaged over segments.
+        p = self.sum / (self.count * np.sum(self.win) ** 2)
+        p[1:] *= 2.0
+        if self.nper % 2 == 0:
+            p[-1] /= 2.0
+        return np.fft.rfftfreq(self.nper, sample_dt), p
+
+
+def _spectrum(welch_acc: _StreamingWelch | None, sample_dt: float) -> SpectrumEvidence | None:
+    if welch_acc is None:
         return None
-    # Segments of a power-of-two length ~ n/4: resolution vs. averaging.
-    nper = 1 << int(np.floor(np.log2(n / 4)))
-    x = buf - buf.mean(axis=0)
-    # Per-segment mean removal: a segment holding a non-integer number of
-    # periods has a mean whose window lobe would pose as a low peak.
-    f, p = welch(x, fs=1.0 / sample_dt, window="hann", nperseg=nper, axis=0,
-                 detrend="constant", scaling="spectrum")
-    psd = p.sum(axis=1)
+    out = welch_acc.psd(sample_dt)
+    if out is None:
+        return None
+    f, psd = out
+    psd = psd.copy()
     psd[0] = 0.0
     df = f[1] - f[0]
     total = psd.sum()
@@ -284,7 +331,8 @@ class _Accumulator:
     def __init__(
         self, u0: Vec, dt: float, n_expected: int, obs: Callable[[Vec], Any],
         invariant: Callable[[Vec], Any] | None, section_fn: Callable[[Vec], float],
-        reservoir_size: int, recent_size: int, spectrum_size: int, seed: int,
+        reservoir_size: int, recent_size: int, spectrum_size: int, spectrum_stride: int,
+        seed: int,
     ) -> None:
         self.dt = dt
         self.obs = obs
@@ -302,11 +350,14 @@ class _Accumulator:
         self.n_cross = 0
         self.first_t = np.nan
         self.last_t = np.nan
-        self.stride = max(1, int(np.ceil(n_expected / spectrum_size)))
-        self.spec = np.empty((n_expected // self.stride + 1, o0.size))
-        self.n_spec = 0
-        self.acc = np.zeros(o0.size)
-        self.n_acc = 0
+        self.stride = spectrum_stride
+        n_spec = n_expected // spectrum_stride
+        # Segment: a power of two, at most spectrum_size, and short enough
+        # for ~7 half-overlapping segments in the run.
+        self.welch = None
+        if n_spec >= 64:
+            nper = min(spectrum_size, 1 << int(np.floor(np.log2(n_spec / 4))))
+            self.welch = _StreamingWelch(nper, o0.size, spectrum_stride)
         self.k = 0
         self.hist: list[tuple[Vec, float]] = []  # last 3 (state, s) for interpolation
 
@@ -318,13 +369,8 @@ class _Accumulator:
         self.st_o.push(o)
         if self.st_i is not None:
             self.st_i.push(np.atleast_1d(np.asarray(self.invariant(u), dtype=float)))
-        self.acc += o
-        self.n_acc += 1
-        if self.n_acc == self.stride and self.n_spec < self.spec.shape[0]:
-            self.spec[self.n_spec] = self.acc / self.stride
-            self.n_spec += 1
-            self.acc[:] = 0.0
-            self.n_acc = 0
+        if self.welch is not None:
+            self.welch.push(o)
         s = float(self.section_fn(u))
         self.hist.append((u, s))
         if len(self.hist) > 3:
@@ -387,7 +433,8 @@ def classify_samples(
     lyap_tol: float = 1e-2,
     reservoir_size: int = 2000,
     recent_size: int = 256,
-    spectrum_size: int = 16384,
+    spectrum_size: int = 8192,
+    spectrum_stride: int = 1,
     seed: int = 0,
 ) -> AttractorClass:
     """Classify from an iterable of states sampled every ``dt`` (post-transient).
@@ -399,7 +446,7 @@ def classify_samples(
     dt:
         Sampling interval.
     n_samples:
-        Number of samples to use (fixes the spectrum decimation stride).
+        Number of samples to use (caps the Welch segment length for short runs).
     observable:
         ``u -> scalar or vector`` for the spectrum (default: ``u[0]``).
     invariant:
@@ -408,8 +455,8 @@ def classify_samples(
     section:
         ``(normal, offset)``: the hyperplane ``normal . u = offset``, crossed
         with ``normal . du > 0``. Default: the first observable component
-        crossing ``section_level`` (default its mean over the first 10 % of
-        the samples, found by reading them first from a buffer).
+        crossing ``section_level`` (default its mean over the first
+        min(10 %, 4096) samples, read ahead into a buffer).
     lyapunov:
         A precomputed :class:`LyapunovResult` to weigh in (optional).
     fp_tol, rw_tol:
@@ -423,7 +470,10 @@ def classify_samples(
     lyap_tol:
         Smallest exponent (per unit time) called positive.
     reservoir_size, recent_size, spectrum_size:
-        Memory bounds.
+        Memory bounds (spectrum_size: longest Welch segment, in samples).
+    spectrum_stride:
+        Decimation of the observable for the spectrum (block means); raise it
+        for slow dynamics sampled finely (resolution ``1/(segment dt stride)``).
     seed:
         Seed of the reservoir sampling.
     """
@@ -435,7 +485,7 @@ def classify_samples(
     obs = observable if observable is not None else (lambda u: u[0])
     # Read a head of up to 10 % (bounded) to fix the default section level.
     head: list[Vec] = []
-    n_head = max(16, min(n_samples // 10, 100_000))
+    n_head = max(16, min(n_samples // 10, 4096))
     for _ in range(n_head):
         try:
             head.append(_as_state(next(it), head[0].size if head else None))
@@ -459,8 +509,10 @@ def classify_samples(
         def section_fn(u: Vec) -> float:
             return float(np.atleast_1d(obs(u))[0]) - lvl
 
+    if spectrum_stride < 1 or spectrum_size < 64:
+        raise SpecError("classify: need spectrum_stride >= 1 and spectrum_size >= 64")
     acc = _Accumulator(u0, dt, n_samples, obs, invariant, section_fn, reservoir_size,
-                       recent_size, spectrum_size, seed)
+                       recent_size, spectrum_size, spectrum_stride, seed)
     n = 0
     for u in head:
         acc.push(u)
@@ -554,7 +606,7 @@ def _decide(
     ret = ((acc.last_t - acc.first_t) / (acc.n_cross - 1)) if acc.n_cross >= 2 else np.nan
     section = SectionEvidence(acc.n_cross, acc.res[:min(acc.n_cross, acc.res.shape[0])].copy(),
                               recent, n_distinct, tol, float(ret))
-    spectrum = _spectrum(acc.spec[:acc.n_spec], dt * acc.stride)
+    spectrum = _spectrum(acc.welch, dt * acc.stride)
     inv_mean = acc.st_i.mean.copy() if acc.st_i is not None else None
     inv_std = acc.st_i.std if acc.st_i is not None else None
     label, reasons = _label(acc.st_u.mean.copy(), acc.st_u.std, inv_mean, inv_std, section,
