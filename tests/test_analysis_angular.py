@@ -12,6 +12,7 @@ from contfil.analysis.angular import (
     count_reversals,
     discrete_torsion,
     handedness,
+    local_handedness,
 )
 from contfil.errors import ContfilError
 
@@ -79,6 +80,17 @@ def test_helix_torsion_and_handedness(c: float, sign: int) -> None:
     Q = np.linalg.qr(np.random.default_rng(0).standard_normal((3, 3)))[0]
     Q *= np.sign(np.linalg.det(Q))
     assert handedness(curve @ Q.T + 5.0) == sign
+
+
+def test_local_handedness_resolves_a_perversion() -> None:
+    # A right-handed helix continued by a left-handed one (a tendril
+    # "perversion"); only the few edges at the join see both.
+    right = _helix(1.0, 0.3, n=601, turns=2.0)
+    left = _helix(1.0, 0.3, n=601, turns=2.0) * [1, -1, 1]
+    curve = np.vstack([right, left[1:] - left[0] + right[-1]])
+    loc = local_handedness(curve)
+    n = loc.size
+    assert np.all(loc[: n // 2 - 5] == 1) and np.all(loc[n // 2 + 5:] == -1)
 
 
 @settings(max_examples=30, deadline=None)

@@ -24,7 +24,14 @@ from numpy.typing import ArrayLike, NDArray
 
 from contfil.errors import SpecError
 
-__all__ = ["angular_speed", "Reversals", "count_reversals", "discrete_torsion", "handedness"]
+__all__ = [
+    "angular_speed",
+    "Reversals",
+    "count_reversals",
+    "discrete_torsion",
+    "local_handedness",
+    "handedness",
+]
 
 Vec = NDArray[np.float64]
 
@@ -147,6 +154,20 @@ def discrete_torsion(curve: ArrayLike, min_curvature: float = 1e-8) -> Vec:
         nb[1:] < min_curvature * le[1:-1] * le[2:])
     tau[straight] = np.nan
     return tau
+
+
+def local_handedness(curve: ArrayLike, min_curvature: float = 1e-8) -> NDArray[np.int64]:
+    """Sign of the torsion at each interior edge (N - 3,): +1 right-handed,
+    -1 left-handed, 0 where the curve is locally straight (or planar).
+
+    Resolves coils of opposite hand along one curve (e.g. a tendril
+    perversion), which the global :func:`handedness` averages away.
+    """
+    tau = discrete_torsion(curve, min_curvature)
+    out = np.zeros(tau.size, dtype=np.int64)
+    ok = np.isfinite(tau)
+    out[ok] = np.sign(tau[ok]).astype(np.int64)
+    return out
 
 
 def handedness(curve: ArrayLike, min_curvature: float = 1e-8) -> int:
