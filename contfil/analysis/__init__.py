@@ -8,7 +8,13 @@ One concept per module: :mod:`~contfil.analysis.spod` (spectral POD),
 :mod:`~contfil.analysis.decay` (far-field power-law fit). See docs/analysis.md.
 """
 
-from contfil.analysis.angular import angular_speed, count_reversals, discrete_torsion, handedness
+from contfil.analysis.angular import (
+    angular_speed,
+    count_reversals,
+    discrete_torsion,
+    handedness,
+    local_handedness,
+)
 from contfil.analysis.bisection import EdgeResult, edge_track
 from contfil.analysis.classify import AttractorClass, classify_attractor, classify_samples
 from contfil.analysis.decay import DecayFit, far_field_decay
@@ -31,5 +37,6 @@ __all__ = [
     "far_field_decay",
     "handedness",
     "largest_lyapunov",
+    "local_handedness",
     "spod",
 ]
