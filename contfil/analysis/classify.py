@@ -380,15 +380,16 @@ class _Accumulator:
         self.k += 1
 
     def _cross(self) -> None:
-        # Quadratic through the last three samples (t = -2, -1, 0) when
-        # available, for both s(t) and u(t); root in [-1, 0].
+        # Quadratic (Lagrange) through the last three samples, at x = -1, 0,
+        # 1 with x = 0 the sample before the sign change, for both s and u;
+        # the crossing is the root in [0, 1] (linear interpolation when only
+        # two samples exist yet).
         (u1, s1), (u2, s2) = self.hist[-2], self.hist[-1]
         tau = s1 / (s1 - s2)  # linear guess in [0, 1] from sample -1
         if len(self.hist) == 3:
             u0, s0 = self.hist[0]
             a = 0.5 * (s0 - 2 * s1 + s2)
             b = 0.5 * (s2 - s0)
-            # s(x) = a x^2 + b x + s1 with x in [0, 1] (x=0 at sample -1).
             if a != 0.0:
                 disc = b * b - 4 * a * s1
                 if disc >= 0:
