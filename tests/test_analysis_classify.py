@@ -146,6 +146,17 @@ def test_samples_interface_and_bounded_memory() -> None:
     assert res.section.n_distinct == 1  # one upward crossing per period
     assert res.section.reservoir.shape == (50, 2)
     assert res.section.n_crossings == 10_000
+    # A callable producing the samples works the same way.
+    state = {"k": 0}
+
+    def produce() -> np.ndarray:
+        state["k"] += 1
+        return pts[(state["k"] - 1) % 3]
+
+    res_c = classify_samples(produce, 1.0, 30_000, section=([1.0, 0.0], 0.5),
+                             reservoir_size=50, recent_size=64, spectrum_size=1024)
+    assert res_c.label == "periodic" and res_c.section.n_crossings == 10_000
+    assert state["k"] == 30_000
     # The Welch segment is capped at spectrum_size samples.
     assert res.spectrum is not None and res.spectrum.frequencies.size == 1024 // 2 + 1
 

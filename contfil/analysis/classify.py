@@ -46,7 +46,7 @@ Labels, tested in this order:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -417,7 +417,7 @@ class _Accumulator:
 
 
 def classify_samples(
-    samples: Iterable[ArrayLike],
+    samples: Iterable[ArrayLike] | Callable[[], ArrayLike],
     dt: float,
     n_samples: int,
     *,
@@ -443,7 +443,8 @@ def classify_samples(
     Parameters
     ----------
     samples:
-        States (1-D, same size); at most ``n_samples`` are read.
+        States (1-D, same size), as an iterable or a callable returning the
+        next state on each call; at most ``n_samples`` are read.
     dt:
         Sampling interval.
     n_samples:
@@ -482,7 +483,11 @@ def classify_samples(
         raise SpecError(f"classify: need at least 16 samples, got {n_samples}")
     if not (np.isfinite(dt) and dt > 0):
         raise SpecError(f"classify: dt must be positive and finite, got {dt}")
-    it = iter(samples)
+    if callable(samples) and not isinstance(samples, Iterable):
+        producer = samples
+        it: Iterator[ArrayLike] = (producer() for _ in range(n_samples))
+    else:
+        it = iter(samples)
     obs = observable if observable is not None else (lambda u: u[0])
     # Read a head of up to 10 % (bounded) to fix the default section level.
     head: list[Vec] = []
