@@ -39,20 +39,30 @@ point).
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse.linalg import splu
 
 from contfil.engine.branch import BRANCH_POINT, CYCLE_BRANCH_POINT, DOUBLE_HOPF, FOLD, HOPF
+from contfil.engine.linalg.bordered import bordered_sparse, solve_minimally_augmented
+from contfil.engine.linalg.eigen import normalise_phase  # also re-exported (old home)
 from contfil.engine.problems.base import Stability
 
 if TYPE_CHECKING:
-    from contfil.engine.continuation.driver import ContinuationSettings
     from contfil.engine.problems.base import Problem
 
 Array = NDArray[np.float64]
+
+class RunOptions(Protocol):
+    """What events read from the run settings (a ``ContinuationSettings``
+    satisfies it; events do not import the continuation layer)."""
+
+    eig_vectors: bool
+    krylov: dict[str, Any]
+
 
 NODE_FOCUS = "node_focus"  # not a bifurcation: two real eigenvalues merge into a complex pair
 
@@ -83,7 +93,7 @@ class EventContext:
     def __init__(
         self,
         problem: Problem,
-        settings: ContinuationSettings,
+        settings: RunOptions,
         X: Array,
         tangent: Array,
         weights: Array,
@@ -366,24 +376,12 @@ class BranchPointEvent(Event):
         key = ("bp_lu", self.name)
         if key in ctx.cache:
             return ctx.cache[key]
-        spj = getattr(ctx.problem, "sparse_jacobian", None)
-        Js = spj(ctx.x, ctx.p) if callable(spj) else None
+        Js = ctx.problem.sparse_jacobian(ctx.x, ctx.p)
         lu = None
         if Js is not None and ctx.gp is not None:
-            import scipy.sparse as sp
-            from scipy.sparse.linalg import splu
-
-            n = ctx.x.size
             row = self._alpha * ctx.weights * ctx.tangent
-            M = sp.bmat(
-                [
-                    [Js, sp.csr_matrix(ctx.gp.reshape(n, 1))],
-                    [sp.csr_matrix(row[:n].reshape(1, n)), sp.csr_matrix(row[n:].reshape(1, 1))],
-                ],
-                format="csc",
-            )
             try:
-                lu = splu(M)
+                lu = splu(bordered_sparse(Js, ctx.gp, row))
             except RuntimeError:  # exactly singular (landed on the point)
                 lu = None
             self.stats["direct"] += 1
@@ -393,75 +391,16 @@ class BranchPointEvent(Event):
     def _solve_bordered(self, ctx: EventContext, i: int, c: Array) -> tuple[Array, float]:
         """``[w; s]`` solving ``[[M, b_i], [c^T, 0]] [w; s] = [0; 1]`` at ``ctx``."""
         assert ctx.apply_bordered is not None
-        b = self._bs[i]
-        m = b.size  # n + 1
         self.stats["solves"] += 1
-        lu = self._sparse_lu(ctx)
-        if lu is not None:
-            # Block elimination with an exact LU: w = -s M^{-1} b,
-            # s = -1 / (c . M^{-1} b). Near a branch point M^{-1} b is large
-            # but its direction (the null vector) and s are accurate.
-            y = lu.solve(b)
-            cy = float(c @ y)
-            if cy == 0.0 or not np.isfinite(cy):
-                return y, float("nan")
-            s = -1.0 / cy
-            return -s * y, s
-        from scipy.sparse.linalg import LinearOperator, gmres
-
-        rhs = np.zeros(m + 1)
-        rhs[-1] = 1.0
-        apply_m = ctx.apply_bordered
-        alpha = self._alpha
-        nmv = [0]
-
-        def mv(v: Array) -> Array:
-            v = np.asarray(v, dtype=float).ravel()
-            nmv[0] += 1
-            top = apply_m(v[:m])
-            top[-1] *= alpha
-            return np.concatenate([top + v[m] * b, [float(c @ v[:m])]])
-
-        P0 = ctx.precondition
-        Mop = None
-        if P0 is not None:
-
-            def P(v: Array) -> Array:  # ~ (D M)^{-1} = M^{-1} D^{-1}
-                v = np.array(v, dtype=float)
-                v[-1] /= alpha
-                return P0(v)
-
-            # Block elimination with P ~ M^{-1}: x = P f - y P b,
-            # c.x = g  =>  y = (c.P f - g) / (c.P b).
-            Pb = P(b)
-            cPb = float(c @ Pb)
-            if cPb != 0.0 and np.isfinite(cPb):
-
-                def prec(v: Array) -> Array:
-                    v = np.asarray(v, dtype=float).ravel()
-                    Pf = P(v[:m])
-                    y = (float(c @ Pf) - v[m]) / cPb
-                    return np.concatenate([Pf - y * Pb, [y]])
-
-                Mop = LinearOperator((m + 1, m + 1), matvec=prec)
-        x0 = self._ws[i]
-        y, info = gmres(
-            LinearOperator((m + 1, m + 1), matvec=mv),
-            rhs,
-            x0=x0 if x0 is not None and x0.size == m + 1 else None,
-            rtol=self._rtol(ctx),
-            atol=0.0,
-            restart=min(m + 1, 60),
-            maxiter=30,
-            M=Mop,
-        )
-        self.stats["matvecs"] += nmv[0]
-        if info != 0:
+        w, s, info = solve_minimally_augmented(
+            ctx.apply_bordered, self._bs[i], c, alpha=self._alpha, lu=self._sparse_lu(ctx),
+            precondition=ctx.precondition, x0=self._ws[i], rtol=self._rtol(ctx))
+        self.stats["matvecs"] += info["matvecs"]
+        if not info["converged"]:
             self.stats["unconverged"] += 1  # s kept: its sign is usually right
-        if not np.all(np.isfinite(y)):
-            return y[:m], float("nan")
-        self._ws[i] = y.copy()
-        return y[:m], float(y[m])
+        if info["y"] is not None:
+            self._ws[i] = info["y"]
+        return w, s
 
     def _borders_init(self, ctx: EventContext) -> None:
         self._reset()
@@ -804,18 +743,6 @@ class HopfEvent(Event):
         return (DOUBLE_HOPF if mult >= 2 else HOPF), data
 
 
-def normalise_phase(v: NDArray) -> NDArray:
-    """Rotate a complex vector's phase so that ``Re v . Im v = 0`` and
-    ``|Re v| >= |Im v|`` (a canonical choice for ``Re(v e^{i w t})``)."""
-    a, b = v.real, v.imag
-    # Choose phi maximising |Re(e^{i phi} v)|: tan(2 phi) = 2 a.b / (|b|^2 - |a|^2)
-    phi = 0.5 * np.arctan2(-2.0 * (a @ b), (a @ a) - (b @ b))
-    w = v * np.exp(1j * phi)
-    if np.linalg.norm(w.imag) > np.linalg.norm(w.real):
-        w = w * 1j
-    return w
-
-
 class NodeFocusEvent(Event):
     """Where the two leading real eigenvalues (each of multiplicity
     ``multiplicity``) merge into a complex pair (node -> focus).
@@ -883,3 +810,20 @@ def default_events(kind: str) -> list[Event]:
     if kind == EQUILIBRIUM:
         return [FoldEvent(), BranchPointEvent(), HopfEvent()]
     return [FoldEvent(), BranchPointEvent()]
+
+
+def merge_events(problem: Problem, events: Sequence[Event] | None,
+                 use_defaults: bool) -> list[Event]:
+    """The run's events: the problem's defaults (``problem.default_events()``,
+    else the standard ones of its kind) plus ``events``; a user event with the
+    name of a default one replaces it. ``use_defaults=False``: ``events`` only."""
+    out: list[Event] = []
+    if use_defaults:
+        de = problem.default_events()
+        out = list(de if de is not None else default_events(problem.kind))
+    for ev in events or ():
+        out = [e for e in out if e.name != ev.name] + [ev]
+    names = [e.name for e in events or ()]
+    if len(set(names)) != len(names):
+        raise ValueError(f"Continuation: event names must be unique, got {names}")
+    return out

@@ -30,12 +30,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from contfil.engine.linalg.krylov import arnoldi
 from contfil.engine.problems.base import Stability
-from contfil.errors import NonFiniteError
 
 Array = NDArray[np.float64]
 
 __all__ = ["arnoldi_eigs", "flag_trivial", "floquet_multipliers"]
+
+#: Krylov space invariant: the new direction is below this fraction of the
+#: largest entry of ``H`` (round-off), so the Ritz values are exact.
+INVARIANT_REL = 1e-13
 
 
 def _sort_leading(vals: NDArray[np.complex128]) -> NDArray[np.intp]:
@@ -93,39 +97,28 @@ def arnoldi_eigs(
     kmax = max(kmax, 1)
     rng = np.random.default_rng(seed)
     v = rng.standard_normal(n) if v0 is None else np.array(v0, dtype=float)
-    V = np.zeros((n, kmax + 1))
-    H = np.zeros((kmax + 1, kmax))
-    V[:, 0] = v / np.linalg.norm(v)
-    prev = np.zeros(0, dtype=complex)
-    change = np.inf
-    converged = False
-    k = 0
-    for j in range(kmax):
-        w = np.asarray(matvec(V[:, j]), dtype=float)
-        if not np.all(np.isfinite(w)):
-            raise NonFiniteError("arnoldi_eigs: the operator returned NaN/inf")
-        for _ in range(2):
-            for i in range(j + 1):
-                hij = float(V[:, i] @ w)
-                H[i, j] += hij
-                w -= hij * V[:, i]
-        hn = float(np.linalg.norm(w))
-        H[j + 1, j] = hn
-        k = j + 1
+    # Stop rule: the nev leading Ritz values settle, or the Krylov space is
+    # invariant (then they are exact); the state lives in this closure.
+    track = {"prev": np.zeros(0, dtype=complex), "change": np.inf, "converged": False}
+
+    def settled(H: Array, k: int, hn: float) -> bool:
         vals = np.linalg.eigvals(H[:k, :k])
         lead = vals[_sort_leading(vals)][: min(nev, k)]
         if k >= nev:
-            change = _max_change(lead, prev) if prev.size >= lead.size else np.inf
-        prev = lead
+            prev = track["prev"]
+            track["change"] = _max_change(lead, prev) if prev.size >= lead.size else np.inf
+        track["prev"] = lead
         scale = max(1.0, float(np.max(np.abs(H[: k + 1, :k]))))
-        if hn <= 1e-13 * scale or k == dim:
-            converged = True  # invariant subspace found: Ritz values are exact
-            change = 0.0
-            break
-        if change < tol:
-            converged = True
-            break
-        V[:, k] = w / hn
+        if hn <= INVARIANT_REL * scale or k == dim:
+            track["converged"], track["change"] = True, 0.0
+            return True
+        if track["change"] < tol:
+            track["converged"] = True
+            return True
+        return False
+
+    V, H, k = arnoldi(matvec, v, kmax, settled, who="arnoldi_eigs")
+    change, converged = track["change"], track["converged"]
     Hk = H[:k, :k]
     vals, Y = np.linalg.eig(Hk)
     order = _sort_leading(vals)

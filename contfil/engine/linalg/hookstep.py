@@ -26,11 +26,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from contfil.engine.linalg.krylov import arnoldi
+from contfil.engine.linalg.newton import NON_FINITE
 from contfil.errors import ConvergenceError, DomainError, NonFiniteError
 
 Array = NDArray[np.float64]
 
 __all__ = ["newton_hookstep", "hookstep_corrector", "hookstep_from_hessenberg", "arnoldi_gmres"]
+
+#: Arnoldi breakdown: the new direction is below this fraction of ``|b|``,
+#: i.e. at round-off of an exactly invariant Krylov space.
+BREAKDOWN_REL = 1e-14
 
 
 def arnoldi_gmres(
@@ -45,35 +51,19 @@ def arnoldi_gmres(
     as soon as the GMRES residual ``min_y |β e1 - H y|`` drops below
     ``rtol * β`` (or on breakdown, or at ``k = m``).
     """
-    n = b.size
     beta = float(np.linalg.norm(b))
-    V = np.zeros((n, m + 1))
-    H = np.zeros((m + 1, m))
     if beta == 0.0:
-        return V[:, :1], H[:1, :0], 0
-    V[:, 0] = b / beta
-    k = 0
-    for j in range(m):
-        w = np.asarray(matvec(V[:, j]), dtype=float)
-        if not np.all(np.isfinite(w)):
-            raise NonFiniteError("arnoldi_gmres: the Jacobian-vector product returned NaN/inf")
-        for _ in range(2):  # twice is enough (Kahan): keeps V orthonormal to round-off
-            for i in range(j + 1):
-                hij = float(V[:, i] @ w)
-                H[i, j] += hij
-                w -= hij * V[:, i]
-        hn = float(np.linalg.norm(w))
-        H[j + 1, j] = hn
-        k = j + 1
-        e1 = np.zeros(k + 1)
-        e1[0] = beta
-        y, *_ = np.linalg.lstsq(H[: k + 1, :k], e1, rcond=None)
-        res = float(np.linalg.norm(e1 - H[: k + 1, :k] @ y))
-        if hn <= 1e-14 * beta or res <= rtol * beta:
-            if hn > 0.0:
-                V[:, k] = w / hn
-            break
-        V[:, k] = w / hn
+        return np.zeros((b.size, 1)), np.zeros((1, 0)), 0
+    e1 = np.zeros(m + 1)
+    e1[0] = beta
+
+    def converged(H: Array, k: int, hn: float) -> bool:
+        # GMRES residual min_y |beta e1 - H y| of the current space
+        y, *_ = np.linalg.lstsq(H[: k + 1, :k], e1[: k + 1], rcond=None)
+        res = float(np.linalg.norm(e1[: k + 1] - H[: k + 1, :k] @ y))
+        return hn <= BREAKDOWN_REL * beta or res <= rtol * beta
+
+    V, H, k = arnoldi(matvec, b, m, converged, who="arnoldi_gmres")
     return V[:, : k + 1], H[: k + 1, :k], k
 
 
@@ -310,7 +300,7 @@ def hookstep_corrector(**options: Any) -> Callable[..., tuple[Array, Any]]:
             X, info = newton_hookstep(F, X0, jvp=jvp, tol=tol, max_iter=max_iter, **opts)
         except NonFiniteError:
             return np.array(X0, dtype=float), NewtonInfo(
-                converged=False, iterations=0, residual=float("inf"), reason="non-finite"
+                converged=False, iterations=0, residual=float("inf"), reason=NON_FINITE
             )
         counts["calls"] += 1
         counts["residual_evals"] += info["residual_evals"]

@@ -213,6 +213,22 @@ class PeriodicOrbitProblem(Problem):
     def accept(self, x: Array, p: float) -> None:
         self.set_reference(x[: self.dim], p)
 
+    def restart_data(self) -> dict[str, Array]:
+        """The phase reference (``u_ref``, ``f_ref``; ``l_ref`` with drift)."""
+        out: dict[str, Array] = {}
+        for k in ("u_ref", "f_ref", "l_ref"):
+            v = getattr(self, k, None)
+            if v is not None:
+                out[k] = np.array(v, dtype=float, copy=True)
+        return out
+
+    def restore(self, data: dict[str, Array]) -> None:
+        """Set the phase reference stored by :meth:`restart_data` exactly
+        (not recomputed: ``f_ref`` was taken at the parameter of that point)."""
+        for k in ("u_ref", "f_ref", "l_ref"):
+            if k in data:
+                setattr(self, k, np.array(data[k], dtype=float, copy=True))
+
     def state(self, x: Array) -> Array:
         """The full model state at the phase origin (embedded if solved in a subspace)."""
         u = np.array(x[: self.dim], dtype=float)

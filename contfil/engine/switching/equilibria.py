@@ -35,17 +35,13 @@ from numpy.typing import NDArray
 
 from contfil.engine.branch import BRANCH_POINT, DOUBLE_HOPF, HOPF, Branch, SpecialPoint
 from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+from contfil.engine.continuation.settings import arclength_weights
 from contfil.engine.events.standard import Event
+from contfil.engine.linalg.bordered import extended_jacobian
 from contfil.engine.problems.base import Problem
 from contfil.errors import ContfilError, ConvergenceError
 
 Array = NDArray[np.float64]
-
-
-def _weights(n: int, theta: float) -> Array:
-    w = np.full(n + 1, theta / n)
-    w[-1] = 1.0 - theta
-    return w
 
 
 def branch_point_tangents(
@@ -81,10 +77,8 @@ def branch_point_tangents(
     """
     n = problem.n
     X = np.concatenate([np.asarray(x, float), [float(p)]])
-    w = _weights(n, theta)
-    A = np.empty((n, n + 1))
-    A[:, :-1] = problem.jacobian(X[:-1], p)
-    A[:, -1] = problem.dp(X[:-1], p)
+    w = arclength_weights(n, theta)
+    A = extended_jacobian(problem, X)
     U, sv, Vt = np.linalg.svd(A)
     Phi = Vt[-2:].T  # (n+1) x 2 right null space (A has n rows)
     psi = U[:, -1]
@@ -195,7 +189,7 @@ def switch_at_branch_point(
     tau_in = special_point.data.get("tangent_in", special_point.data.get("tangent", pt.tangent))
     _, tau2, info = branch_point_tangents(problem, x, pt.p, tau_in, theta=s.theta)
     n = problem.n
-    w = _weights(n, s.theta)
+    w = arclength_weights(n, s.theta)
     step = s.ds if ds is None else float(ds)
     X_bp = np.concatenate([x, [pt.p]])
     out: list[Branch] = []
@@ -204,10 +198,10 @@ def switch_at_branch_point(
         c = w * t
         cont = Continuation(problem, x, pt.p, s, tangent=t, events=events, corrector=corrector)
         # Correct the first point on the hyperplane <t, X - X_bp>_W = step.
-        X1, ninfo = cont._solve(X_bp + step * t, c, float(c @ X_bp) + step)
+        X1, ninfo = cont.pa.solve(X_bp + step * t, c, float(c @ X_bp) + step)
         if not ninfo.converged:
             raise ConvergenceError(
-                f"branch switching at {problem.kind} {getattr(problem, 'param', 'p')}={pt.p:.10g}: "
+                f"branch switching at {problem.kind} {problem.param}={pt.p:.10g}: "
                 f"first point did not converge (residual {ninfo.residual:.3e}, direction {sgn:+d})"
             )
         cont = Continuation(
