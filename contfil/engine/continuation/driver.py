@@ -372,7 +372,7 @@ class Continuation:
                   f"ds={self.ds:.3g} it={info.iterations} n_unstable={pt.n_unstable}"
                   + "".join(f" *{sp.kind}" for _, sp in new_special))
         if s.adapt:
-            if s.grows_after(info.iterations, matrix_free=not pb.dense):
+            if s.grows_after(info.iterations, pb.fast_iter):
                 self.ds = min(self.ds * s.grow, s.ds_max)
             elif info.iterations >= s.slow_iter:
                 self.ds = max(self.ds * s.slow_shrink, s.ds_min)

@@ -62,9 +62,8 @@ class ContinuationSettings:
         component; ``1 - theta`` for the parameter).
     adapt:
         Adaptive step: grow by ``grow`` when the corrector needs at most
-        ``fast_iter`` iterations (``fast_iter_krylov`` for the matrix-free
-        corrector, whose inexact Newton needs more iterations for the same
-        predictor error), shrink by ``shrink`` on a failed step and by
+        ``fast_iter`` iterations (or the problem's ``fast_iter``, when it
+        declares a larger one), shrink by ``shrink`` on a failed step and by
         ``slow_shrink`` after a slow one (``slow_iter`` iterations or more:
         the point is accepted, so the cut is milder).
     max_angle:
@@ -104,7 +103,6 @@ class ContinuationSettings:
     shrink: float = 0.5
     slow_shrink: float = 0.7
     fast_iter: int = 3
-    fast_iter_krylov: int | None = None
     slow_iter: int = 6
     max_angle: float = 0.5
     detect_events: bool = True
@@ -145,11 +143,13 @@ class ContinuationSettings:
         """GMRES tolerance of the matrix-free tangent solve."""
         return float(self.krylov.get("tangent_rtol", TANGENT_RTOL))
 
-    def grows_after(self, iterations: int, matrix_free: bool) -> bool:
-        """Whether a step converged in ``iterations`` is fast enough to grow ``ds``."""
+    def grows_after(self, iterations: int, problem_fast_iter: int | None = None) -> bool:
+        """Whether a step converged in ``iterations`` is fast enough to grow
+        ``ds``: at most ``fast_iter``, or the problem's own ``fast_iter``
+        when it declares one (the larger of the two)."""
         fast = self.fast_iter
-        if matrix_free and self.fast_iter_krylov is not None:
-            fast = self.fast_iter_krylov
+        if problem_fast_iter is not None:
+            fast = max(fast, int(problem_fast_iter))
         return iterations <= fast
 
     def __post_init__(self) -> None:

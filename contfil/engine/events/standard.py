@@ -145,11 +145,7 @@ class EventContext:
         return self._stab
 
     def _compute_stability(self, vectors: bool) -> Stability:
-        pb = self.problem
-        try:
-            return pb.stability(self.x, self.p, vectors=vectors)  # type: ignore[call-arg]
-        except TypeError:
-            return pb.stability(self.x, self.p)
+        return self.problem.stability(self.x, self.p, vectors=vectors)
 
     @property
     def has_stability(self) -> bool:

@@ -96,8 +96,9 @@ class Problem(ABC):
 
     Optional hooks (declared here with defaults; the driver calls them
     unconditionally): ``param``, ``subspace``, ``rhs_evals`` /
-    ``flow_evals`` (cost counters), :meth:`params_at`, :meth:`observables`,
-    :meth:`default_events`, :meth:`sparse_jacobian`, :meth:`preconditioner`,
+    ``flow_evals`` (cost counters), ``fast_iter`` (step growth),
+    :meth:`params_at`, :meth:`observables`, :meth:`default_events`,
+    :meth:`sparse_jacobian`, :meth:`preconditioner`,
     :meth:`accept`, :meth:`restart_data` / :meth:`restore` (what a resumed
     run needs besides ``(x, p)``, e.g. a phase reference).
     """
@@ -113,6 +114,9 @@ class Problem(ABC):
     rhs_evals: int | None = None
     #: Cumulative flow evaluations, for time-steppers (``None``: not counted).
     flow_evals: int | None = None
+    #: Corrector iterations that still count as a fast step for this problem
+    #: (``None``: the run's ``fast_iter`` alone decides when ``ds`` grows).
+    fast_iter: int | None = None
 
     @abstractmethod
     def residual(self, x: Array, p: float) -> Array:
@@ -142,8 +146,9 @@ class Problem(ABC):
         return None
 
     @abstractmethod
-    def stability(self, x: Array, p: float) -> Stability:
-        """Eigenvalues or Floquet multipliers at a solution."""
+    def stability(self, x: Array, p: float, vectors: bool = False) -> Stability:
+        """Eigenvalues or Floquet multipliers at a solution (with eigenvectors
+        when ``vectors``; a problem may return them anyway)."""
 
     @abstractmethod
     def state(self, x: Array) -> Array:
