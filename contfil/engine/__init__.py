@@ -35,7 +35,8 @@ from contfil.engine.events.standard import (
     NodeFocusEvent,
     default_events,
 )
-from contfil.engine.flows.radau import FlowOps, RadauFlow, flow_ops
+from contfil.engine.flows.ops import FlowOps, flow_ops
+from contfil.engine.flows.radau import RadauFlow
 from contfil.engine.linalg.eigen import dense_stability, normalise_phase, shift_invert_stability
 from contfil.engine.linalg.floquet import arnoldi_eigs, flag_trivial, floquet_multipliers
 from contfil.engine.linalg.hookstep import hookstep_corrector, newton_hookstep
@@ -56,10 +57,10 @@ from contfil.engine.switching.cycles import (
 from contfil.engine.switching.equilibria import (
     branch_point_tangents,
     hopf_data,
-    hopf_normal_form,
     o2_hopf_modes,
     switch_at_branch_point,
 )
+from contfil.engine.switching.normal_form import hopf_normal_form
 
 __all__ = [
     "Branch",

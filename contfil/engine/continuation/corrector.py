@@ -31,7 +31,7 @@ from contfil.engine.continuation.settings import (
     ContinuationSettings,
     arclength_weights,
 )
-from contfil.engine.events.standard import EventContext
+from contfil.engine.events.base import EventContext
 from contfil.engine.linalg.bordered import (
     bordered_dense,
     bordered_lu,

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from contfil.engine.branch import Point, SpecialPoint
 from contfil.engine.continuation.corrector import PseudoArclength
-from contfil.engine.events.standard import Event, EventContext
+from contfil.engine.events.base import Event, EventContext
 from contfil.errors import ContfilError
 
 Array = NDArray[np.float64]

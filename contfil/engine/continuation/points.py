@@ -8,7 +8,7 @@ import numpy as np
 
 from contfil.engine.branch import Point
 from contfil.engine.continuation.settings import ContinuationSettings
-from contfil.engine.events.standard import EventContext
+from contfil.engine.events.base import EventContext
 from contfil.engine.linalg.newton import NewtonInfo
 from contfil.engine.problems.base import Problem
 

@@ -31,7 +31,7 @@ import scipy.linalg as sla
 from numpy.typing import NDArray
 
 from contfil.engine.branch import ROTATING_WAVE
-from contfil.engine.flows.radau import FlowOps
+from contfil.engine.flows.ops import FlowOps
 from contfil.engine.linalg.floquet import floquet_multipliers
 from contfil.engine.linalg.hookstep import newton_hookstep
 from contfil.engine.problems.base import Problem, Stability, fd_jacobian, fd_step, resolve_params

@@ -36,7 +36,7 @@ import scipy.linalg as sla
 from numpy.typing import NDArray
 
 from contfil.engine.branch import PERIODIC_ORBIT, RELATIVE_PERIODIC_ORBIT
-from contfil.engine.flows.radau import FlowOps
+from contfil.engine.flows.ops import FlowOps
 from contfil.engine.linalg.floquet import floquet_multipliers
 from contfil.engine.problems.base import Problem, Stability, resolve_params
 from contfil.errors import DomainError, SpecError
@@ -84,7 +84,7 @@ class PeriodicOrbitProblem(Problem):
         period, e.g. the period-mean bending energy of a diagram); costs ``k``
         extra flow calls of length ``T/k`` per point.
     flow_kwargs, fd_rel, fd_central:
-        Passed to :class:`~contfil.engine.flows.radau.FlowOps` (keywords of a
+        Passed to :class:`~contfil.engine.flows.ops.FlowOps` (keywords of a
         model's own ``flow``; finite-difference increment and scheme).
     """
 
