@@ -108,6 +108,60 @@ def hookstep_from_hessenberg(H: Array, beta: float, delta: float) -> tuple[Array
     return y, mu, pred
 
 
+#: Trust-radius rules (``numerics-notes.md``): an actual/predicted residual
+#: reduction below ``POOR_RATIO`` shrinks the radius to ``SHRINK_POOR |s|``;
+#: a good hooked step doubles it (``GROW``, up to the cap).
+POOR_RATIO = 0.75
+SHRINK_POOR = 0.7
+GROW = 2.0
+
+
+def _trust_region_step(
+    Fc: Callable[[Array], Array],
+    x: Array,
+    r: Array,
+    rn: float,
+    Vk: Array,
+    H: Array,
+    Delta: float,
+    bounds: tuple[float, float],
+    max_hooks: int,
+) -> tuple[Array, Array, float, float, bool]:
+    """One hooked Newton step in the Krylov space ``Vk`` (with Hessenberg
+    ``H``): shrink the radius and retry while the residual rises.
+
+    Returns ``(x, r, |r|, Delta, accepted)`` (unchanged point if not accepted).
+    """
+    delta_min, Dmax = bounds
+    for _ in range(max_hooks):
+        y, mu, pred = hookstep_from_hessenberg(H, rn, Delta)
+        s = Vk @ y
+        snorm = float(np.linalg.norm(s))
+        x_new = x + s
+        try:
+            r_new = Fc(x_new)
+        except (NonFiniteError, DomainError):
+            # the trial point left the domain (e.g. T <= 0): too long a step
+            r_new = np.full_like(r, np.inf)
+        rn_new = float(np.linalg.norm(r_new)) if np.all(np.isfinite(r_new)) else np.inf
+        if rn_new >= rn:
+            # residual rose: the linear model is wrong at this distance
+            Delta = max(snorm / 2.0, 0.0)
+            if Delta < delta_min:
+                break
+            continue
+        ratio = (rn - rn_new) / max(rn - pred, 1e-300)
+        if ratio < POOR_RATIO:
+            Delta = max(SHRINK_POOR * snorm, delta_min)
+        elif mu > 0.0:
+            # a good hooked step: the model is trustworthy farther out
+            Delta = min(GROW * Delta, Dmax)
+        else:
+            Delta = min(max(Delta, GROW * snorm), Dmax)
+        return x_new, r_new, rn_new, Delta, True
+    return x, r, rn, Delta, False
+
+
 def newton_hookstep(
     F: Callable[[Array], Array],
     x0: Array,
@@ -215,37 +269,8 @@ def newton_hookstep(
         if k == 0:
             status = "zero_krylov"
             break
-        accepted = False
-        for _ in range(max_hooks):
-            y, mu, pred = hookstep_from_hessenberg(H, rn, Delta)
-            s = V[:, :k] @ y
-            snorm = float(np.linalg.norm(s))
-            x_new = x + s
-            try:
-                r_new = Fc(x_new)
-            except (NonFiniteError, DomainError):
-                # the trial point left the domain (e.g. T <= 0): too long a step
-                r_new = np.full_like(r, np.inf)
-            rn_new = float(np.linalg.norm(r_new)) if np.all(np.isfinite(r_new)) else np.inf
-            if rn_new >= rn:
-                # residual rose: the linear model is wrong at this distance
-                Delta = max(snorm / 2.0, 0.0)
-                if Delta < delta_min:
-                    break
-                continue
-            actual = rn - rn_new
-            predicted = max(rn - pred, 1e-300)
-            ratio = actual / predicted
-            if ratio < 0.75:
-                Delta = max(0.7 * snorm, delta_min)
-            elif mu > 0.0:
-                # a good hooked step: the model is trustworthy farther out
-                Delta = min(2.0 * Delta, Dmax)
-            else:
-                Delta = min(max(Delta, 2.0 * snorm), Dmax)
-            x, r, rn = x_new, r_new, rn_new
-            accepted = True
-            break
+        x, r, rn, Delta, accepted = _trust_region_step(
+            Fc, x, r, rn, V[:, :k], H, Delta, (delta_min, Dmax), max_hooks)
         history.append(rn)
         if not accepted:
             status = "trust_region_collapsed"

@@ -167,6 +167,8 @@ def newton_krylov(
         (``<= 1e4 tol``) when the update is below ``step_tol (1 + max|X|)``
         or no step decreases it.
     """
+    # Over 80 lines through its docstring; the loop (GMRES, line search,
+    # round-off exits) is one Newton iteration and reads best in one piece.
     X = np.array(X0, dtype=float)
     n = X.size
     r = F(X)

@@ -75,6 +75,8 @@ def branch_point_tangents(
         ``info`` holds the coefficients ``a11, a12, a22``, the discriminant
         and the two smallest singular values of ``A``.
     """
+    # Long (~70 code lines) by design: the algebraic bifurcation equation and
+    # its degenerate fallback read as one derivation (Kuznetsov 2004, §10.2).
     n = problem.n
     X = np.concatenate([np.asarray(x, float), [float(p)]])
     w = arclength_weights(n, theta)
