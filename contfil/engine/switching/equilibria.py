@@ -76,7 +76,7 @@ def branch_point_tangents(
         and the two smallest singular values of ``A``.
     """
     # Long (~70 code lines) by design: the algebraic bifurcation equation and
-    # its degenerate fallback read as one derivation (Kuznetsov 2004, §10.2).
+    # its degenerate fallback read as one derivation (Kuznetsov 2004, ch. 10).
     n = problem.n
     X = np.concatenate([np.asarray(x, float), [float(p)]])
     w = arclength_weights(n, theta)

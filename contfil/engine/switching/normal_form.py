@@ -99,8 +99,8 @@ def hopf_normal_form(
     (left vectors, ``y_i^T q_j = delta_ij``, so ``z_i ~ y_i^T (u - u*)``),
     ``m`` and the four booleans above (double Hopf).
     """
-    # Long by design: the normal-form coefficients (Kuznetsov 2004, §3.5 and
-    # §8.6) are one formula written out in order; pieces would scatter it.
+    # Long by design: the normal-form coefficients (Kuznetsov 2004, ch. 3 and
+    # ch. 8) are one formula written out in order; pieces would scatter it.
     if special_point.kind not in (HOPF, DOUBLE_HOPF):
         raise ContfilError(f"hopf_normal_form needs a Hopf point, got {special_point.kind!r}")
     pt = special_point.point
