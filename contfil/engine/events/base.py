@@ -52,6 +52,13 @@ if TYPE_CHECKING:
 
 Array = NDArray[np.float64]
 
+#: ``exp`` overflows above ~709.8: the scaled determinant is at most 1 in
+#: magnitude anyway, so its log is clipped at 700 before ``exp``.
+LOG_DET_CLIP = 700.0
+#: Floor of ``|det|`` so that its sign survives underflow (smallest normal
+#: double ~2.2e-308).
+DET_FLOOR = 1e-300
+
 
 class RunOptions(Protocol):
     """What events read from the run settings (a ``ContinuationSettings``
@@ -155,7 +162,7 @@ class EventContext:
             return float("nan")
         if self.log_det == -np.inf:
             return 0.0
-        return float(self.det_sign * max(np.exp(min(self.log_det, 700.0)), 1e-300))
+        return float(self.det_sign * max(np.exp(min(self.log_det, LOG_DET_CLIP)), DET_FLOOR))
 
 
 class Event:

@@ -16,6 +16,19 @@ from contfil.engine.linalg.bordered import bordered_sparse, solve_minimally_augm
 
 Array = NDArray[np.float64]
 
+#: Default seed of the random bordering vectors: any fixed value makes runs
+#: reproducible (and resumed runs equal to uninterrupted ones).
+BORDER_SEED = 20_001
+#: Independent border sets: a branch point is a zero of all of them, a pole
+#: belongs to one; three make a pole cancelling a zero in every set unlikely.
+N_BORDERS = 3
+#: Localisation: a trial value above this multiple of both bracket ends is
+#: heading for a pole of ``s``, not a zero (the iteration is stopped).
+POLE_CAP = 2.0
+#: A localised point is a branch point only when ``|s|`` fell below this
+#: fraction of both bracket ends (a zero); otherwise it was a pole.
+ZERO_FRACTION = 0.1
+
 
 class BranchPointEvent(Event):
     """Simple branch point: the determinant of the bordered matrix
@@ -85,8 +98,8 @@ class BranchPointEvent(Event):
         imag_tol: float = 1e-7,
         matrix_free: str = "bordered",
         rtol: float | None = None,
-        seed: int = 20_001,
-        n_borders: int = 3,
+        seed: int = BORDER_SEED,
+        n_borders: int = N_BORDERS,
     ) -> None:
         if matrix_free not in ("bordered", "spectral"):
             raise ValueError(
@@ -322,7 +335,8 @@ class BranchPointEvent(Event):
             if j % 2 == 1 and pend is not None:
                 ver = pend[0]
             self._loc = (i, ver)
-            cap = 2.0 * max(abs(self._value(ctx0, i, ver)[1]), abs(self._value(ctx1, i, ver)[1]))
+            ends = (abs(self._value(ctx0, i, ver)[1]), abs(self._value(ctx1, i, ver)[1]))
+            cap = POLE_CAP * max(ends)
 
             def g(ctx: EventContext) -> float:
                 s = float(self._value(ctx, i, ver)[1])
@@ -359,7 +373,7 @@ class BranchPointEvent(Event):
         w, s = self._value(ctx, i, ver)
         s0 = abs(self._value(ctx0, i, ver)[1])
         s1 = abs(self._value(ctx1, i, ver)[1])
-        if not np.isfinite(s) or abs(s) > 0.1 * min(s0, s1):
+        if not np.isfinite(s) or abs(s) > ZERO_FRACTION * min(s0, s1):
             # |s| grew instead of vanishing: the sign change was a pole of s
             # (borders orthogonal to the null vector), not a branch point.
             return None
