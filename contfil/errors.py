@@ -24,3 +24,32 @@ class DomainError(ContfilError, ValueError):
 
     Trust-region solvers treat it like a failed trial step and shrink.
     """
+
+
+class StepFailure(ConvergenceError):
+    """A continuation step failed even at the smallest step ``ds_min``; the
+    run stops.
+
+    Attributes (typed, so callers never parse the message): ``param`` and
+    ``p`` (where: the parameter name and the value of the last accepted
+    point) and ``cause``, the failure of the last attempt, one of
+    :data:`STEP_FAILURE_CAUSES`.
+    """
+
+    def __init__(self, message: str, *, cause: str = "corrector", param: str = "p",
+                 p: float = float("nan")) -> None:
+        super().__init__(message)
+        self.cause = cause
+        self.param = param
+        self.p = p
+
+
+class NonFiniteStepFailure(StepFailure, NonFiniteError):
+    """A :class:`StepFailure` whose last attempt produced NaN or infinity."""
+
+
+#: Values of :attr:`StepFailure.cause`: the corrector did not converge; a
+#: residual or Jacobian was NaN/inf; an unknown left its domain; a flow
+#: (time integration) failed; the tangent solve failed; the tangent turned
+#: by more than ``max_angle``.
+STEP_FAILURE_CAUSES = ("corrector", "non-finite", "domain", "flow", "tangent", "tangent_turn")

@@ -67,7 +67,8 @@ def test_pitchfork_of_cycles_switching(run, side):
     m, pb, br = run
     bp = next(sp for sp in br.special_points if sp.kind == CYCLE_BRANCH_POINT)
     start = cycles_from_branch_point(pb, bp, eps=0.1, side=side)
-    new = start.run(ContinuationSettings(ds=0.05, ds_max=0.1, max_points=3, p_min=-0.2), events=[])
+    new = start.run(ContinuationSettings(ds=0.05, ds_max=0.1, max_points=3, p_min=-0.2,
+                                         detect_events=False))
     w1 = np.array([pt.u[2] for pt in new.points])
     assert np.all(np.sign(w1) == np.sign(w1[0]))  # one half of the pitchfork
     for pt in new.points:
@@ -80,7 +81,8 @@ def test_period_doubling_switching(run):
     pd = next(sp for sp in br.special_points if sp.kind == PERIOD_DOUBLING)
     start = cycles_from_period_doubling(pb, pd, eps=0.1)
     assert start.p0 < 0.8  # the doubled cycles exist below c_pd
-    new = start.run(ContinuationSettings(ds=0.05, ds_max=0.1, max_points=3, p_min=0.0), events=[])
+    new = start.run(ContinuationSettings(ds=0.05, ds_max=0.1, max_points=3, p_min=0.0,
+                                         detect_events=False))
     for pt in new.points:
         assert pt.u[3] ** 2 + pt.u[4] ** 2 == pytest.approx(0.8 - pt.p, abs=1e-7)
         assert pt.extra["period"] == pytest.approx(2 * exact_multipliers(pt.p)["period"], abs=1e-6)

@@ -71,7 +71,7 @@ def test_matrix_free_shooting_with_hookstep_corrector_matches_dense():
     x0 = np.array([ex["r"] * 1.2, 0.1, ex["period"] * 0.95])
     corr = hookstep_corrector()
     run = Continuation(pb, x0, 0.5, ContinuationSettings(ds=0.05, max_points=4, p_max=1.0),
-                       corrector=corr, events=[])
+                       corrector=corr, default_events=False)
     br = run.run()
     assert len(br.points) == 4
     for pt in br.points:

@@ -4,7 +4,8 @@ default Radau flow (order 5, exact tangent); trivial multipliers by eigenvectors
 import numpy as np
 import pytest
 
-from contfil.engine.flows.radau import FlowOps, RadauFlow
+from contfil.engine.flows.ops import FlowOps
+from contfil.engine.flows.radau import RadauFlow
 from contfil.engine.linalg.floquet import arnoldi_eigs, flag_trivial, floquet_multipliers
 from contfil.engine.problems.shooting import PeriodicOrbitProblem
 from contfil.models.catalog.cycles_designed import (

@@ -122,8 +122,8 @@ def test_switch_onto_the_branch_leaving_the_subspace():
         start = cycles_leaving_subspace(pb, sp, eps=0.1, side=side)
         assert start.problem.subspace is None and start.problem.dim == 3
         assert start.info["side"] == -1.0  # the tilted cycles exist for beta < c
-        new = start.run(ContinuationSettings(ds=0.05, ds_max=0.1, max_points=4, p_min=0.1),
-                        events=[])
+        new = start.run(ContinuationSettings(ds=0.05, ds_max=0.1, max_points=4, p_min=0.1,
+                                             detect_events=False))
         for pt in new.points:
             # exact: r² = beta, z² = c - beta, T = 2π (60 Radau steps: O(h⁵))
             assert pt.u[2] ** 2 == pytest.approx(C - pt.p, abs=1e-7)

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from contfil.engine.branch import ENDPOINT, Point
+from contfil.engine.continuation.state import ContinuationState
 from contfil.errors import ContfilError
 from contfil.explore.explorer import Step
 from contfil.explore.seeds import Seed
@@ -21,8 +22,6 @@ class _EngineSegment:
 
     def __init__(self, seed: Seed, direction: int, settings: Any,
                  resume: TaskRecords | None) -> None:
-        from dataclasses import replace
-
         from contfil.engine.continuation.driver import Continuation
 
         self.end_reason = ""
@@ -34,18 +33,12 @@ class _EngineSegment:
                                     direction=1 if seed.tangent is not None else d,
                                     tangent=None if seed.tangent is None else d * seed.tangent)
         else:
-            # Restart exactly where the stored run was: the last accepted
-            # point (its unknowns x are stored and already solve G = 0, so the
-            # engine does not correct them), its tangent (orientation
-            # included) and the step size the iterator had after that point.
-            last: Point = resume.points[-1]
-            x = resume.xs[-1]
-            ds = float(resume.state.get("ds", last.step or settings.ds))
-            ds = min(max(ds, settings.ds_min), settings.ds_max)
-            st = replace(settings, ds=ds)
-            self.run = Continuation(seed.problem, x, last.p, st, direction=1,
-                                    tangent=np.asarray(last.tangent, dtype=float))
-            # Re-run the problem's accept hook (phase references move with it).
+            # Restart exactly where the stored run was, from its stored
+            # ContinuationState: the last accepted point (it already solves
+            # G = 0 and is not re-corrected), its tangent, the step size and
+            # the problem's restart data (phase references).
+            state = stored_state(resume, seed.problem, settings)
+            self.run = Continuation.from_state(seed.problem, state, settings)
             self.offset = len(resume.points) - 1
             self.skip_first = True
 
@@ -65,9 +58,9 @@ class _EngineSegment:
                 first = False
                 continue
             first = False
-            x = _current_x(run, pt)
-            yield Step(point=pt, x=np.array(x, dtype=float), specials=sps,
-                       state={"ds": float(run.ds)})
+            state = run.state
+            yield Step(point=pt, x=np.array(state.x, dtype=float), specials=sps,
+                       state=state.to_dict())
         self.end_reason = str(run.stop_reason or "stopped")
 
 
@@ -83,7 +76,7 @@ def restart_seed(graph: Any, bid: str, index: int, problem: Any,
     pt = graph.point(bid, index)
     tail = [float(pt.extra[k]) for k in ("omega", "period", "drift") if k in pt.extra]
     u = np.asarray(pt.u, dtype=float)
-    sub = getattr(problem, "subspace", None)
+    sub = problem.subspace
     if sub is not None and u.size + len(tail) != problem.n:
         u = np.asarray(sub.project(u), dtype=float)  # solved in an invariant subspace
     x = np.concatenate([u, tail])
@@ -97,15 +90,24 @@ def restart_seed(graph: Any, bid: str, index: int, problem: Any,
                 label=f"{bid}[{index}]")
 
 
-def _current_x(run: Any, pt: Point) -> np.ndarray:
-    """Problem unknowns of the last accepted point (needed to restart)."""
-    x = getattr(run, "x", None)  # a public accessor, if the engine grows one
-    if x is None:
-        prev = run.__dict__.get("_prev")
-        x = None if prev is None else prev.X[:-1]
-    if x is None:
-        x = np.concatenate([pt.u, [float(v) for v in pt.extra.values()]])
-    return np.asarray(x, dtype=float)
+def stored_state(resume: TaskRecords, problem: Any, settings: Any) -> ContinuationState:
+    """The :class:`ContinuationState` after the last stored point of ``resume``.
+
+    Records written before the state was stored whole hold only ``ds``: the
+    state is then rebuilt from the point (its unknowns ``x``, parameter and
+    tangent), and the problem's restart data is what its ``accept`` hook
+    sets at that point (the phase reference moves to the accepted point).
+    """
+    last: Point = resume.points[-1]
+    if "X" in resume.state:
+        return ContinuationState.from_dict(resume.state)
+    x = np.asarray(resume.xs[-1], dtype=float)
+    problem.accept(x, float(last.p))
+    return ContinuationState(
+        X=np.concatenate([x, [float(last.p)]]),
+        tangent=np.asarray(last.tangent, dtype=float),
+        ds=float(resume.state.get("ds", last.step or settings.ds)),
+        n_points=len(resume.points), problem=problem.restart_data())
 
 
 def engine_continuer(seed: Seed, direction: int, settings: Any,

@@ -130,7 +130,7 @@ class CycleBranchPointEvent(BranchPointEvent):
         return bool(ctx.problem.dense) or ctx.apply_bordered is None
 
     def _real(self, ctx: EventContext) -> NDArray[np.complex128]:
-        sub = getattr(ctx.problem, "subspace", None)
+        sub = ctx.problem.subspace
         st = ctx.stability if sub is None else ctx.stability_with_vectors()
         vals, idx = _nontrivial(st)
         keep = _is_real(vals, self.imag_tol) & (vals.real > 0)
@@ -339,7 +339,7 @@ class SubspaceBreakingEvent(Event):
 
     def _cands(self, ctx: EventContext) -> tuple[NDArray[np.float64], list[int], Stability]:
         st = ctx.stability_with_vectors()
-        sub = getattr(ctx.problem, "subspace", None)
+        sub = ctx.problem.subspace
         if sub is None:
             return np.zeros(0), [], st
         c, idx = subspace_breaking_multipliers(sub, st, self.imag_tol, self.threshold)

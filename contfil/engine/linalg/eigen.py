@@ -22,6 +22,25 @@ from contfil.errors import ConvergenceError, NonFiniteError
 Array = NDArray[np.float64]
 
 
+def normalise_phase(v: NDArray[np.complex128]) -> NDArray[np.complex128]:
+    """Canonical phase and scale of a complex eigenvector.
+
+    Returns ``e^{i phi} v / |v|`` with ``Re w . Im w = 0`` and
+    ``|Re w| >= |Im w|`` (the phase maximising ``|Re(e^{i phi} v)|``:
+    ``tan 2 phi = 2 a.b / (|b|^2 - |a|^2)`` for ``v = a + i b``), so
+    ``Re(w e^{i omega t})`` starts at the largest real part. A zero vector
+    is returned unchanged. The single definition (events, switching and the
+    filament's own seeds use it).
+    """
+    a, b = v.real, v.imag
+    phi = 0.5 * np.arctan2(-2.0 * (a @ b), (a @ a) - (b @ b))
+    w = v * np.exp(1j * phi)
+    if np.linalg.norm(w.imag) > np.linalg.norm(w.real):
+        w = w * 1j
+    nw = float(np.linalg.norm(w))
+    return w / nw if nw > 0.0 else w
+
+
 def sort_leading(values: NDArray, vectors: NDArray | None = None) -> tuple[NDArray, NDArray | None]:
     """Sort eigenvalues by decreasing real part (then decreasing imaginary part).
 

@@ -26,11 +26,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from contfil.engine.linalg.krylov import arnoldi
+from contfil.engine.linalg.newton import NON_FINITE
 from contfil.errors import ConvergenceError, DomainError, NonFiniteError
 
 Array = NDArray[np.float64]
 
 __all__ = ["newton_hookstep", "hookstep_corrector", "hookstep_from_hessenberg", "arnoldi_gmres"]
+
+#: Arnoldi breakdown: the new direction is below this fraction of ``|b|``,
+#: i.e. at round-off of an exactly invariant Krylov space.
+BREAKDOWN_REL = 1e-14
 
 
 def arnoldi_gmres(
@@ -45,35 +51,19 @@ def arnoldi_gmres(
     as soon as the GMRES residual ``min_y |β e1 - H y|`` drops below
     ``rtol * β`` (or on breakdown, or at ``k = m``).
     """
-    n = b.size
     beta = float(np.linalg.norm(b))
-    V = np.zeros((n, m + 1))
-    H = np.zeros((m + 1, m))
     if beta == 0.0:
-        return V[:, :1], H[:1, :0], 0
-    V[:, 0] = b / beta
-    k = 0
-    for j in range(m):
-        w = np.asarray(matvec(V[:, j]), dtype=float)
-        if not np.all(np.isfinite(w)):
-            raise NonFiniteError("arnoldi_gmres: the Jacobian-vector product returned NaN/inf")
-        for _ in range(2):  # twice is enough (Kahan): keeps V orthonormal to round-off
-            for i in range(j + 1):
-                hij = float(V[:, i] @ w)
-                H[i, j] += hij
-                w -= hij * V[:, i]
-        hn = float(np.linalg.norm(w))
-        H[j + 1, j] = hn
-        k = j + 1
-        e1 = np.zeros(k + 1)
-        e1[0] = beta
-        y, *_ = np.linalg.lstsq(H[: k + 1, :k], e1, rcond=None)
-        res = float(np.linalg.norm(e1 - H[: k + 1, :k] @ y))
-        if hn <= 1e-14 * beta or res <= rtol * beta:
-            if hn > 0.0:
-                V[:, k] = w / hn
-            break
-        V[:, k] = w / hn
+        return np.zeros((b.size, 1)), np.zeros((1, 0)), 0
+    e1 = np.zeros(m + 1)
+    e1[0] = beta
+
+    def converged(H: Array, k: int, hn: float) -> bool:
+        # GMRES residual min_y |beta e1 - H y| of the current space
+        y, *_ = np.linalg.lstsq(H[: k + 1, :k], e1[: k + 1], rcond=None)
+        res = float(np.linalg.norm(e1[: k + 1] - H[: k + 1, :k] @ y))
+        return hn <= BREAKDOWN_REL * beta or res <= rtol * beta
+
+    V, H, k = arnoldi(matvec, b, m, converged, who="arnoldi_gmres")
     return V[:, : k + 1], H[: k + 1, :k], k
 
 
@@ -116,6 +106,60 @@ def hookstep_from_hessenberg(H: Array, beta: float, delta: float) -> tuple[Array
     e1[0] = beta
     pred = float(np.linalg.norm(e1 - H @ y))
     return y, mu, pred
+
+
+#: Trust-radius rules (``numerics-notes.md``): an actual/predicted residual
+#: reduction below ``POOR_RATIO`` shrinks the radius to ``SHRINK_POOR |s|``;
+#: a good hooked step doubles it (``GROW``, up to the cap).
+POOR_RATIO = 0.75
+SHRINK_POOR = 0.7
+GROW = 2.0
+
+
+def _trust_region_step(
+    Fc: Callable[[Array], Array],
+    x: Array,
+    r: Array,
+    rn: float,
+    Vk: Array,
+    H: Array,
+    Delta: float,
+    bounds: tuple[float, float],
+    max_hooks: int,
+) -> tuple[Array, Array, float, float, bool]:
+    """One hooked Newton step in the Krylov space ``Vk`` (with Hessenberg
+    ``H``): shrink the radius and retry while the residual rises.
+
+    Returns ``(x, r, |r|, Delta, accepted)`` (unchanged point if not accepted).
+    """
+    delta_min, Dmax = bounds
+    for _ in range(max_hooks):
+        y, mu, pred = hookstep_from_hessenberg(H, rn, Delta)
+        s = Vk @ y
+        snorm = float(np.linalg.norm(s))
+        x_new = x + s
+        try:
+            r_new = Fc(x_new)
+        except (NonFiniteError, DomainError):
+            # the trial point left the domain (e.g. T <= 0): too long a step
+            r_new = np.full_like(r, np.inf)
+        rn_new = float(np.linalg.norm(r_new)) if np.all(np.isfinite(r_new)) else np.inf
+        if rn_new >= rn:
+            # residual rose: the linear model is wrong at this distance
+            Delta = max(snorm / 2.0, 0.0)
+            if Delta < delta_min:
+                break
+            continue
+        ratio = (rn - rn_new) / max(rn - pred, 1e-300)
+        if ratio < POOR_RATIO:
+            Delta = max(SHRINK_POOR * snorm, delta_min)
+        elif mu > 0.0:
+            # a good hooked step: the model is trustworthy farther out
+            Delta = min(GROW * Delta, Dmax)
+        else:
+            Delta = min(max(Delta, GROW * snorm), Dmax)
+        return x_new, r_new, rn_new, Delta, True
+    return x, r, rn, Delta, False
 
 
 def newton_hookstep(
@@ -225,37 +269,8 @@ def newton_hookstep(
         if k == 0:
             status = "zero_krylov"
             break
-        accepted = False
-        for _ in range(max_hooks):
-            y, mu, pred = hookstep_from_hessenberg(H, rn, Delta)
-            s = V[:, :k] @ y
-            snorm = float(np.linalg.norm(s))
-            x_new = x + s
-            try:
-                r_new = Fc(x_new)
-            except (NonFiniteError, DomainError):
-                # the trial point left the domain (e.g. T <= 0): too long a step
-                r_new = np.full_like(r, np.inf)
-            rn_new = float(np.linalg.norm(r_new)) if np.all(np.isfinite(r_new)) else np.inf
-            if rn_new >= rn:
-                # residual rose: the linear model is wrong at this distance
-                Delta = max(snorm / 2.0, 0.0)
-                if Delta < delta_min:
-                    break
-                continue
-            actual = rn - rn_new
-            predicted = max(rn - pred, 1e-300)
-            ratio = actual / predicted
-            if ratio < 0.75:
-                Delta = max(0.7 * snorm, delta_min)
-            elif mu > 0.0:
-                # a good hooked step: the model is trustworthy farther out
-                Delta = min(2.0 * Delta, Dmax)
-            else:
-                Delta = min(max(Delta, 2.0 * snorm), Dmax)
-            x, r, rn = x_new, r_new, rn_new
-            accepted = True
-            break
+        x, r, rn, Delta, accepted = _trust_region_step(
+            Fc, x, r, rn, V[:, :k], H, Delta, (delta_min, Dmax), max_hooks)
         history.append(rn)
         if not accepted:
             status = "trust_region_collapsed"
@@ -310,7 +325,7 @@ def hookstep_corrector(**options: Any) -> Callable[..., tuple[Array, Any]]:
             X, info = newton_hookstep(F, X0, jvp=jvp, tol=tol, max_iter=max_iter, **opts)
         except NonFiniteError:
             return np.array(X0, dtype=float), NewtonInfo(
-                converged=False, iterations=0, residual=float("inf"), reason="non-finite"
+                converged=False, iterations=0, residual=float("inf"), reason=NON_FINITE
             )
         counts["calls"] += 1
         counts["residual_evals"] += info["residual_evals"]

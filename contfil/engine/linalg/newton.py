@@ -26,6 +26,14 @@ from scipy.sparse.linalg import LinearOperator, gmres
 from contfil.errors import NonFiniteError
 
 Array = NDArray[np.float64]
+
+#: ``NewtonInfo.reason`` values (compare with ``==``, never by substring).
+NON_FINITE = "non-finite"
+SINGULAR = "singular"
+LINEAR_SOLVER = "linear solver"
+NO_DESCENT = "no descent"
+MAX_ITER = "max_iter"
+ROUND_OFF = "round-off"
 ResidualFn = Callable[[Array], Array]
 JvpFn = Callable[[Array, Array], Array]
 
@@ -107,27 +115,27 @@ def newton_dense(
             return X, NewtonInfo(True, it - 1, res, hist)
         J = jac(X)
         if not np.all(np.isfinite(J)):
-            return X, NewtonInfo(False, it, res, hist, "non-finite")
+            return X, NewtonInfo(False, it, res, hist, NON_FINITE)
         try:
             lu = sla.lu_factor(J, check_finite=False)
             if np.min(np.abs(np.diag(lu[0]))) == 0.0:
-                return X, NewtonInfo(False, it, res, hist, "singular")
+                return X, NewtonInfo(False, it, res, hist, SINGULAR)
             dX = sla.lu_solve(lu, r, check_finite=False)
         except (np.linalg.LinAlgError, ValueError):
-            return X, NewtonInfo(False, it, res, hist, "singular")
+            return X, NewtonInfo(False, it, res, hist, SINGULAR)
         Xn = X - dX
         rn = F(Xn)
         resn = _norm(rn)
         if not np.isfinite(resn):
-            return X, NewtonInfo(False, it, res, hist, "non-finite")
+            return X, NewtonInfo(False, it, res, hist, NON_FINITE)
         X, r, res = Xn, rn, resn
         hist.append(res)
         # Converged to round-off: when the residual cannot reach an absolute
         # ``tol`` (large Jacobian entries, e.g. 1/h^2 of a fine grid) the
         # Newton update still tells how far the solution is.
         if res > tol and it >= 2 and _norm(dX) <= step_tol * (1.0 + _norm(X)) and res <= 1e4 * tol:
-            return X, NewtonInfo(True, it, res, hist, "round-off")
-    return X, NewtonInfo(res <= tol, max_iter, res, hist, "" if res <= tol else "max_iter")
+            return X, NewtonInfo(True, it, res, hist, ROUND_OFF)
+    return X, NewtonInfo(res <= tol, max_iter, res, hist, "" if res <= tol else MAX_ITER)
 
 
 def newton_krylov(
@@ -159,6 +167,8 @@ def newton_krylov(
         (``<= 1e4 tol``) when the update is below ``step_tol (1 + max|X|)``
         or no step decreases it.
     """
+    # Over 80 lines through its docstring; the loop (GMRES, line search,
+    # round-off exits) is one Newton iteration and reads best in one piece.
     X = np.array(X0, dtype=float)
     n = X.size
     r = F(X)
@@ -198,7 +208,7 @@ def newton_krylov(
         )
         lin_it += count[0]
         if not np.all(np.isfinite(dX)):
-            return X, NewtonInfo(False, it, res, hist, "linear solver", lin_it)
+            return X, NewtonInfo(False, it, res, hist, LINEAR_SOLVER, lin_it)
         # Backtracking on the residual norm (cheap insurance, rarely active).
         lam = 1.0
         for _ in range(6):
@@ -211,12 +221,12 @@ def newton_krylov(
         else:
             if res <= 1e4 * tol:
                 # At the round-off floor of the residual: no step can reduce it.
-                return X, NewtonInfo(True, it, res, hist, "round-off", lin_it)
+                return X, NewtonInfo(True, it, res, hist, ROUND_OFF, lin_it)
             if not np.isfinite(resn):
-                return X, NewtonInfo(False, it, res, hist, "non-finite", lin_it)
-            return X, NewtonInfo(False, it, res, hist, "no descent", lin_it)
+                return X, NewtonInfo(False, it, res, hist, NON_FINITE, lin_it)
+            return X, NewtonInfo(False, it, res, hist, NO_DESCENT, lin_it)
         X, r, res = Xn, rn, resn
         hist.append(res)
         if res > tol and _norm(lam * dX) <= step_tol * (1.0 + _norm(X)) and res <= 1e4 * tol:
-            return X, NewtonInfo(True, it, res, hist, "round-off", lin_it)
-    return X, NewtonInfo(res <= tol, max_iter, res, hist, "" if res <= tol else "max_iter", lin_it)
+            return X, NewtonInfo(True, it, res, hist, ROUND_OFF, lin_it)
+    return X, NewtonInfo(res <= tol, max_iter, res, hist, "" if res <= tol else MAX_ITER, lin_it)

@@ -13,6 +13,7 @@ override them when they can do better.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,6 +58,29 @@ def fd_step(x: Array, v: Array, rel: float = 1e-7) -> float:
     return rel * (1.0 + float(np.linalg.norm(x))) / nv
 
 
+#: Relative step of the central-difference Jacobian of :class:`Problem`:
+#: about the cube root of machine epsilon (1e-16^(1/3) ~ 5e-6), the optimum
+#: of a central difference, rounded.
+FD_CENTRAL_REL = 1e-6
+
+
+def fd_jacobian(f: Callable[[Array], Array], x: Array, rel: float = FD_CENTRAL_REL) -> Array:
+    """Dense Jacobian of ``f`` at ``x`` by central differences.
+
+    Column ``j`` uses the step ``h_j = rel (1 + |x_j|)`` (error ``O(h^2)``
+    plus round-off ``O(eps / h)``). The one finite-difference Jacobian of
+    the engine: problems call it with their own residual and ``fd_rel``.
+    """
+    n = x.size
+    J = np.empty((n, n))
+    h = rel * (1.0 + np.abs(x))
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = h[j]
+        J[:, j] = (f(x + e) - f(x - e)) / (2.0 * h[j])
+    return J
+
+
 class Problem(ABC):
     """``G(x, p) = 0`` to be continued in ``p``.
 
@@ -69,11 +93,30 @@ class Problem(ABC):
     dense:
         True when a dense Jacobian is affordable (small systems); the
         continuation then uses dense linear algebra, otherwise Krylov.
+
+    Optional hooks (declared here with defaults; the driver calls them
+    unconditionally): ``param``, ``subspace``, ``rhs_evals`` /
+    ``flow_evals`` (cost counters), ``fast_iter`` (step growth),
+    :meth:`params_at`, :meth:`observables`, :meth:`default_events`,
+    :meth:`sparse_jacobian`, :meth:`preconditioner`,
+    :meth:`accept`, :meth:`restart_data` / :meth:`restore` (what a resumed
+    run needs besides ``(x, p)``, e.g. a phase reference).
     """
 
     n: int
     kind: str
     dense: bool = True
+    #: Name of the continuation parameter.
+    param: str = "p"
+    #: Invariant subspace the problem is solved in (``None``: the full space).
+    subspace: Any = None
+    #: Cumulative right-hand-side evaluations (``None``: not counted).
+    rhs_evals: int | None = None
+    #: Cumulative flow evaluations, for time-steppers (``None``: not counted).
+    flow_evals: int | None = None
+    #: Corrector iterations that still count as a fast step for this problem
+    #: (``None``: the run's ``fast_iter`` alone decides when ``ds`` grows).
+    fast_iter: int | None = None
 
     @abstractmethod
     def residual(self, x: Array, p: float) -> Array:
@@ -81,14 +124,7 @@ class Problem(ABC):
 
     def jacobian(self, x: Array, p: float) -> Array:
         """Dense ``G_x`` by central differences (override when known)."""
-        n = x.size
-        J = np.empty((n, n))
-        h = 1e-6 * (1.0 + np.abs(x))
-        for j in range(n):
-            e = np.zeros(n)
-            e[j] = h[j]
-            J[:, j] = (self.residual(x + e, p) - self.residual(x - e, p)) / (2 * h[j])
-        return J
+        return fd_jacobian(lambda y: self.residual(y, p), x)
 
     def jvp(self, x: Array, p: float, v: Array, g0: Array | None = None) -> Array:
         """``G_x v`` by a one-sided finite difference (``g0 = G(x, p)`` if known)."""
@@ -101,7 +137,7 @@ class Problem(ABC):
 
     def dp(self, x: Array, p: float) -> Array:
         """``G_p`` by central differences."""
-        h = 1e-6 * (1.0 + abs(p))
+        h = FD_CENTRAL_REL * (1.0 + abs(p))
         return (self.residual(x, p + h) - self.residual(x, p - h)) / (2 * h)
 
     def accept(self, x: Array, p: float) -> None:
@@ -110,8 +146,9 @@ class Problem(ABC):
         return None
 
     @abstractmethod
-    def stability(self, x: Array, p: float) -> Stability:
-        """Eigenvalues or Floquet multipliers at a solution."""
+    def stability(self, x: Array, p: float, vectors: bool = False) -> Stability:
+        """Eigenvalues or Floquet multipliers at a solution (with eigenvectors
+        when ``vectors``; a problem may return them anyway)."""
 
     @abstractmethod
     def state(self, x: Array) -> Array:
@@ -120,6 +157,38 @@ class Problem(ABC):
     def extra(self, x: Array) -> dict[str, float]:
         """Kind-specific unknowns in ``x`` (period, omega, drift)."""
         return {}
+
+    # ------------------------------------------------------- optional hooks
+    def params_at(self, p: float) -> Array:
+        """The model's full parameter vector at ``p`` (default: ``[p]``)."""
+        return np.array([p])
+
+    def observables(self, x: Array, p: float) -> dict[str, Any] | None:
+        """Scalar observables stored with each point (``None``: none)."""
+        return None
+
+    def default_events(self) -> list[Any] | None:
+        """The problem's own default events (``None``: the standard ones of
+        its ``kind``)."""
+        return None
+
+    def sparse_jacobian(self, x: Array, p: float) -> Any | None:
+        """``G_x`` as a scipy sparse matrix, when cheap (``None``: not available)."""
+        return None
+
+    def preconditioner(self, x: Array, p: float) -> Callable[[Array], Array] | None:
+        """An approximate ``G_x^{-1}`` for matrix-free solves (``None``: none)."""
+        return None
+
+    def restart_data(self) -> dict[str, Array]:
+        """State a resumed run needs besides ``(x, p)`` and the tangent, as
+        plain arrays (e.g. the phase-condition reference after the last
+        :meth:`accept`). Default: nothing."""
+        return {}
+
+    def restore(self, data: dict[str, Array]) -> None:
+        """Restore what :meth:`restart_data` returned. Default: nothing."""
+        return None
 
 
 def resolve_params(model: Any, params: Any, who: str) -> Array:

@@ -17,7 +17,7 @@ from contfil.engine.linalg.eigen import (
     merge_stability,
     shift_invert_stability,
 )
-from contfil.engine.problems.base import Problem, Stability, fd_step, resolve_params
+from contfil.engine.problems.base import Problem, Stability, fd_jacobian, fd_step, resolve_params
 from contfil.errors import ConvergenceError, NonFiniteError, SpecError
 from contfil.protocol import Model, param_index
 
@@ -39,10 +39,11 @@ class EquilibriumProblem(Problem):
     dense_threshold:
         Use dense linear algebra when ``model.dim <= dense_threshold``.
     fd_rel:
-        Relative step of the central finite-difference Jacobian
-        (``h_j = fd_rel * (1 + |u_j|)``) used when the model has no
-        ``jacobian``. Central differences have error ``O(h^2)`` plus
-        round-off ``O(eps/h)``; ``1e-5`` balances them for smooth fields.
+        Relative step of the central differences (Jacobian columns
+        ``h_j = fd_rel * (1 + |u_j|)``, Jacobian-vector products and
+        ``G_p``) used when the model has no ``jacobian``. Central
+        differences have error ``O(h^2)`` plus round-off ``O(eps/h)``;
+        ``1e-5`` balances them for smooth fields.
     n_eigs:
         Number of leading eigenvalues computed by shift-invert Arnoldi for
         large (non-dense) problems.
@@ -131,14 +132,7 @@ class EquilibriumProblem(Problem):
             return np.asarray(self.model.jacobian(x, self.params_at(p)), dtype=float)
         if self._has_sparse_jac:
             return np.asarray(self.model.jacobian_sparse(x, self.params_at(p)).toarray())
-        n = x.size
-        J = np.empty((n, n))
-        h = self.fd_rel * (1.0 + np.abs(x))
-        for j in range(n):
-            e = np.zeros(n)
-            e[j] = h[j]
-            J[:, j] = (self.residual(x + e, p) - self.residual(x - e, p)) / (2.0 * h[j])
-        return J
+        return fd_jacobian(lambda y: self.residual(y, p), x, self.fd_rel)
 
     def jvp(self, x: Array, p: float, v: Array, g0: Array | None = None) -> Array:
         if self._has_jac and self.dense:
@@ -147,7 +141,7 @@ class EquilibriumProblem(Problem):
             return self.sparse_jacobian(x, p) @ v
         # Central difference: one more rhs call than one-sided, but O(eps^2/3)
         # accuracy, which Krylov-based localisation of events needs.
-        eps = fd_step(x, v, rel=1e-5)
+        eps = fd_step(x, v, rel=self.fd_rel)
         if eps == 0.0:
             return np.zeros_like(x)
         return (self.residual(x + eps * v, p) - self.residual(x - eps * v, p)) / (2.0 * eps)

@@ -31,10 +31,10 @@ import scipy.linalg as sla
 from numpy.typing import NDArray
 
 from contfil.engine.branch import ROTATING_WAVE
-from contfil.engine.flows.radau import FlowOps
+from contfil.engine.flows.ops import FlowOps
 from contfil.engine.linalg.floquet import floquet_multipliers
 from contfil.engine.linalg.hookstep import newton_hookstep
-from contfil.engine.problems.base import Problem, Stability, fd_step, resolve_params
+from contfil.engine.problems.base import Problem, Stability, fd_jacobian, fd_step, resolve_params
 from contfil.errors import SpecError
 from contfil.protocol import Model, param_index
 
@@ -130,14 +130,7 @@ class RotatingWaveProblem(Problem):
         """Dense ``f_u`` (model Jacobian or central differences)."""
         if self._has_jac:
             return np.asarray(self.model.jacobian(u, self.params_at(p)), dtype=float)
-        n = u.size
-        J = np.empty((n, n))
-        h = self.fd_rel * (1.0 + np.abs(u))
-        for j in range(n):
-            e = np.zeros(n)
-            e[j] = h[j]
-            J[:, j] = (self._f(u + e, p) - self._f(u - e, p)) / (2 * h[j])
-        return J
+        return fd_jacobian(lambda v: self._f(v, p), u, self.fd_rel)
 
     def residual(self, x: Array, p: float) -> Array:
         self._ensure_ref(x)
@@ -160,7 +153,7 @@ class RotatingWaveProblem(Problem):
             return self.jacobian(x, p) @ v
         u, om = x[: self.dim], float(x[self.dim])
         vu, vom = v[: self.dim], float(v[self.dim])
-        eps = fd_step(u, vu, rel=1e-5)
+        eps = fd_step(u, vu, rel=self.fd_rel)
         dfu = (self._f(u + eps * vu, p) - self._f(u - eps * vu, p)) / (2 * eps) if eps else 0 * u
         top = dfu - om * (self.L @ vu) - vom * (self.L @ u)
         return np.concatenate([top, [self.l_ref @ vu]])
@@ -173,6 +166,18 @@ class RotatingWaveProblem(Problem):
 
     def accept(self, x: Array, p: float) -> None:
         self.set_reference(x[: self.dim])
+
+    def restart_data(self) -> dict[str, Array]:
+        """The phase reference ``u_ref`` and its unit ``L u_ref``."""
+        if self.u_ref is None or self.l_ref is None:
+            return {}
+        return {"u_ref": self.u_ref.copy(), "l_ref": self.l_ref.copy()}
+
+    def restore(self, data: dict[str, Array]) -> None:
+        """Set the phase reference stored by :meth:`restart_data` exactly."""
+        if "u_ref" in data:
+            self.u_ref = np.array(data["u_ref"], dtype=float, copy=True)
+            self.l_ref = np.array(data["l_ref"], dtype=float, copy=True)
 
     def state(self, x: Array) -> Array:
         return np.array(x[: self.dim], dtype=float)

@@ -1,0 +1,151 @@
+"""The flow of a model as the shooting problems use it: counted
+evaluations and one derivative API (Jacobian-vector products, monodromy,
+``d/dT`` and ``d/dp``) over a model's own ``flow`` or the engine's
+:class:`~contfil.engine.flows.radau.RadauFlow`."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from contfil.engine.flows.radau import RadauFlow
+from contfil.engine.problems.base import fd_step
+from contfil.errors import NonFiniteError
+
+__all__ = ["FlowOps", "flow_ops"]
+
+Array = NDArray[np.float64]
+
+
+class FlowOps:
+    """The flow of a model with counted evaluations and a uniform derivative API.
+
+    Uses ``model.flow`` (and ``model.flow_jvp``) when present; otherwise a
+    :class:`RadauFlow` built from ``rhs``/``jacobian``. ``flow_evals`` counts
+    calls of the time-stepper (a finite-difference ``jvp`` costs one; an
+    exact tangent of the default flow costs none once the base trajectory is
+    cached, and ``tangent_evals`` counts those separately).
+
+    ``flow_kwargs`` are passed to a model's own ``flow`` (e.g. ``{"steps":
+    1000}`` for a stepper that wants its resolution); ``fd_rel`` sets the
+    finite-difference increment (raise it for a stepper whose result is only
+    accurate to its nonlinear-solver tolerance); ``fd_central`` switches to
+    central differences (two flows per product, O(ε²) truncation error; pair
+    it with a larger ``fd_rel``, e.g. 1e-5).
+    """
+
+    def __init__(
+        self,
+        model: Any,
+        steps: int = 100,
+        fd_rel: float = 1e-7,
+        param_index: int | None = None,
+        flow_kwargs: dict[str, Any] | None = None,
+        fd_central: bool = False,
+    ) -> None:
+        self.model = model
+        self.fd_central = bool(fd_central)
+        self.param_index = param_index
+        self.fd_rel = float(fd_rel)
+        self.flow_evals = 0
+        self.tangent_evals = 0
+        own = getattr(model, "flow", None)
+        self.radau: RadauFlow | None = None
+        if callable(own):
+            kw = dict(flow_kwargs or {})
+            self._flow = (lambda u, p, T: own(u, p, T, **kw)) if kw else own
+            self._flow_jvp = getattr(model, "flow_jvp", None)
+        else:
+            jac = getattr(model, "jacobian", None)
+            self.radau = RadauFlow(model.rhs, jac if callable(jac) else None, steps=steps)
+            self.radau.param_index = param_index
+            self._flow = self.radau.flow_and_tangents
+            self._flow_jvp = None
+        self._last: tuple[tuple[bytes, bytes, float], Array] | None = None
+
+    @property
+    def exact_tangent(self) -> bool:
+        """True when ``jvp`` is an exact derivative (default flow or model.flow_jvp)."""
+        return self.radau is not None or self._flow_jvp is not None
+
+    def flow(self, u: Array, p: Array, T: float) -> Array:
+        """``φ_T(u)`` (memoised on the last call, so a residual and its jvp share it)."""
+        key = (np.asarray(u, float).tobytes(), np.asarray(p, float).tobytes(), float(T))
+        if self._last is not None and self._last[0] == key:
+            return self._last[1].copy()
+        self.flow_evals += 1
+        out = np.asarray(self._flow(np.asarray(u, float), p, float(T)), dtype=float)
+        if not np.all(np.isfinite(out)):
+            name = getattr(self.model, "name", "?")
+            raise NonFiniteError(f"flow of model {name!r} returned NaN/inf")
+        self._last = (key, out)
+        return out.copy()
+
+    def jvp(self, u: Array, p: Array, T: float, v: Array, dT: float = 0.0) -> Array:
+        """``Dφ_T(u) v + ∂_T φ_T(u) dT``."""
+        if self.radau is not None:
+            self.flow(u, p, T)  # make sure the base trajectory is cached (and counted)
+            self.tangent_evals += 1
+            return self.radau.flow_jvp(u, p, T, v, dT)
+        if self._flow_jvp is not None and dT == 0.0:
+            self.tangent_evals += 1
+            return np.asarray(self._flow_jvp(u, p, T, v), dtype=float)
+        base = self.flow(u, p, T)
+        z = np.concatenate([u, [T]])
+        dv = np.concatenate([v, [dT]])
+        eps = fd_step(z, dv, self.fd_rel)
+        if eps == 0.0:
+            return np.zeros_like(base)
+        if self.fd_central:
+            # O(ε²) truncation instead of O(ε): two flows per product
+            self.flow_evals += 2
+            fp = np.asarray(self._flow(u + eps * v, p, T + eps * dT), dtype=float)
+            fm = np.asarray(self._flow(u - eps * v, p, T - eps * dT), dtype=float)
+            return (fp - fm) / (2 * eps)
+        self.flow_evals += 1
+        pert = np.asarray(self._flow(u + eps * v, p, T + eps * dT), dtype=float)
+        return (pert - base) / eps
+
+    def dflow_dT(self, u: Array, p: Array, T: float) -> Array:
+        """``∂_T φ_T(u)``: exact for the default flow, ``f(φ_T(u))`` otherwise.
+
+        For a model's own stepper, ``f`` at the end point is the derivative of
+        the exact flow; it avoids a finite difference in ``T`` (a fixed-step
+        stepper changes its step size with ``T``).
+        """
+        if self.radau is not None:
+            return self.jvp(u, p, T, np.zeros_like(u), 1.0)
+        return np.asarray(self.model.rhs(self.flow(u, p, T), p), dtype=float)
+
+    def dflow_dp(self, u: Array, p: Array, T: float) -> Array:
+        """``∂φ_T(u)/∂p[param_index]``: exact for the default flow, central
+        differences of the model's flow otherwise (two flow evaluations)."""
+        k = self.param_index
+        if k is None:
+            raise ValueError("FlowOps.dflow_dp: no param_index given")
+        if self.radau is not None:
+            self.flow(u, p, T)
+            return self.radau.dflow_dp(u, p, T)
+        h = 1e-6 * (1.0 + abs(float(p[k])))
+        pp, pm = np.array(p, dtype=float), np.array(p, dtype=float)
+        pp[k] += h
+        pm[k] -= h
+        self.flow_evals += 2
+        fp = np.asarray(self._flow(np.asarray(u, float), pp, float(T)), dtype=float)
+        fm = np.asarray(self._flow(np.asarray(u, float), pm, float(T)), dtype=float)
+        return (fp - fm) / (2 * h)
+
+    def monodromy(self, u: Array, p: Array, T: float) -> Array:
+        """Dense ``Dφ_T(u)`` (exact for the default flow; ``n`` jvps otherwise)."""
+        if self.radau is not None:
+            self.flow(u, p, T)
+            return self.radau.monodromy(u, p, T)[0]
+        n = np.asarray(u).size
+        return np.column_stack([self.jvp(u, p, T, e) for e in np.eye(n)])
+
+
+def flow_ops(model: Any, steps: int = 100, param_index: int | None = None) -> FlowOps:
+    """:class:`FlowOps` for ``model`` (its own flow if it has one)."""
+    return FlowOps(model, steps=steps, param_index=param_index)
