@@ -217,7 +217,8 @@ def bench_filament_beating(points: int) -> None:
     print(f"\n== filament tip FF beating (planar solve, 3-D Floquet): double Hopf f = "
           f"{dh.point.p:.6f}; first point f = {start.p0:.6f}")
     run = start.continuation(ContinuationSettings(ds=0.5, ds_max=2.0, max_points=points,
-                                                  p_max=60.0, max_angle=0.8), events=[])
+                                                  p_max=60.0, max_angle=0.8,
+                                                  detect_events=False))
     print(f"{'f':>10} {'T':>9} {'1/T':>8} {'unstable':>8} {'trivial':>7}  leading multipliers")
     for pt in run:
         print(f"{pt.p:10.4f} {pt.extra['period']:9.6f} {1 / pt.extra['period']:8.4f} "

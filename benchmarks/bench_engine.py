@@ -86,7 +86,7 @@ def large_problems() -> None:
         ev = BranchPointEvent()
         s = ContinuationSettings(ds=0.2, ds_max=0.5, p_max=17.0, compute_stability=False)
         t0 = time.perf_counter()
-        br = continue_branch(pb, e.u0, 0.0, s, events=[FoldEvent(), ev])
+        br = continue_branch(pb, e.u0, 0.0, s, events=[FoldEvent(), ev], default_events=False)
         wall = time.perf_counter() - t0
         bps = np.array([sp.point.p for sp in br.special_points if sp.kind == BRANCH_POINT])
         ex = e.exact["bps"][: bps.size]

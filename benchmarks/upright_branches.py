@@ -98,7 +98,7 @@ def upright_branch(
     )
     events = [FoldEvent(), BranchPointEvent(), HopfEvent(), NodeFocusEvent(multiplicity=2)]
     t0 = time.perf_counter()
-    run = Continuation(pb, model.initial_state(), 0.0, s, events=events)
+    run = Continuation(pb, model.initial_state(), 0.0, s, events=events, default_events=False)
     left = None
     for _ in run:
         if left is None and any(sp.kind in (HOPF, DOUBLE_HOPF) for sp in run.branch.special_points):
