@@ -74,7 +74,7 @@ def project_planar(U: Array) -> Array:
 def bending_energy(t: Array, dL: float, KB: float) -> float:
     """``E = K_B/2 int |d^2Y/ds^2|^2 ds ~ K_B sum_n |t_{n+1} - t_n|^2 / (2 dL)``.
 
-    The one discrete form used everywhere (docs/decisions.md, decision 21):
+    The one discrete form used everywhere (docs/decisions.md, decision 13):
     ``d^2Y/ds^2 = dt/ds`` is differenced across each joint over one segment
     length ``dL``; a joint turning by ``theta`` contributes ``K_B (2
     sin(theta/2))^2 / (2 dL)``. ``t`` is the (N, d) array of unit tangents.

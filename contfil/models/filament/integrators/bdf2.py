@@ -37,7 +37,7 @@ started from the linear extrapolation ``2 z^k - z^{k-1}`` of increments and
 loads (first step: zero increments and the multipliers of the continuous
 constraint problem at the initial state).
 ``H0 = J0^{-1}`` comes from an analytic approximate Jacobian
-(:func:`~contfil.models.filament.kernels.bdf2_solver.approx_jacobian`):
+(:func:`~contfil.models.filament.kernels.bdf2_jacobian.approx_jacobian`):
 
 - ``jacobian="self"``: self-mobilities only, the paper's choice. With RPY
   its chord map is not a contraction (interactions are O(1) at ``dL =

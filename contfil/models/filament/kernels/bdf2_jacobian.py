@@ -38,7 +38,7 @@ from .effects import (
 from .elastic import elastic_moments
 from .geometry import positions, tangents
 from .quaternion import dexp_matrix, qrotmat
-from .rpy import rpy_mobility
+from .rpy import rpy_mobility, self_mobilities
 from .squirmer import squirmer_matrix
 
 
@@ -318,8 +318,7 @@ def approx_jacobian(
     """Approximate Jacobian ``J0 = dR/dz`` (reduced layout) at ``z`` (module docstring)."""
     N = qk.shape[0]
     dL, a, eta = par[P_DL], par[P_A], par[P_ETA]
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     gdt = coef[C_G] * coef[C_DT]
     zf = full_unknowns(z, zmap, scale, N)
     q = np.empty((N, 4))

@@ -59,6 +59,31 @@ def _fresh_inverse(
 
 
 @njit(cache=True)
+def _refresh(
+    H: np.ndarray,
+    builds: int,
+    max_refresh: int,
+    over: int,
+    z: np.ndarray,
+    qk: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    jmode: int,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+) -> int:
+    """Rebuild ``H`` at ``z``: OK, or ``over`` when the refreshes are used up,
+    or NONFINITE when ``J0`` cannot be inverted."""
+    if builds > max_refresh:
+        return over
+    if not _fresh_inverse(H, z, qk, coef, par, flags, jmode, zmap, rmap, scale):
+        return NONFINITE
+    return OK
+
+
+@njit(cache=True)
 def solve_step(
     z: np.ndarray,
     H: np.ndarray,
@@ -88,6 +113,9 @@ def solve_step(
     ``STALL_ITERS`` iterations, or a trial point is non-finite, ``J0`` is
     rebuilt at the current iterate (at most ``opts[O_MAXREF]`` times).
     Returns (status, iterations, final residual inf-norm, J0 builds).
+
+    (Over 80 lines only through its 18 array arguments: the loop body is ~60
+    lines, one iteration with its two safeguards.)
     """
     jmode = opts[O_JMODE]
     max_iter, max_refresh = opts[O_MAXIT], opts[O_MAXREF]
@@ -135,10 +163,10 @@ def solve_step(
             # undo the step and restart from a fresh J0 if allowed
             for i in range(nz):
                 z[i] -= s[i]
-            if builds > max_refresh:
-                return NONFINITE, it, resn, builds
-            if not _fresh_inverse(H, z, qk, coef, par, flags, jmode, zmap, rmap, scale):
-                return NONFINITE, it, resn, builds
+            st = _refresh(H, builds, max_refresh, NONFINITE, z, qk, coef, par, flags, jmode,
+                          zmap, rmap, scale)
+            if st != OK:
+                return st, it, resn, builds
             builds += 1
             since = 0
             continue
@@ -153,10 +181,10 @@ def solve_step(
         else:
             since += 1
         if since >= STALL_ITERS:
-            if builds > max_refresh:
-                return STALL, it, res, builds
-            if not _fresh_inverse(H, z, qk, coef, par, flags, jmode, zmap, rmap, scale):
-                return NONFINITE, it, res, builds
+            st = _refresh(H, builds, max_refresh, STALL, z, qk, coef, par, flags, jmode,
+                          zmap, rmap, scale)
+            if st != OK:
+                return st, it, res, builds
             builds += 1
             since = 0
             best = res
@@ -280,6 +308,7 @@ def advance(
     builds) of step i. On failure ``info = [status, step index, residual]``
     and the state is left at the last accepted step. ``rec_offset`` steps of
     the same recording were taken by earlier calls (it shifts the schedule).
+    (Over 80 lines only through its 20 arguments and this docstring.)
     """
     N = q.shape[0]
     nz = zmap.shape[0]

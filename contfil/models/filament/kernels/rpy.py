@@ -25,6 +25,12 @@ from numba import njit
 
 
 @njit(cache=True)
+def self_mobilities(a: float, eta: float) -> tuple[float, float]:
+    """(translational, rotational) self-mobility ``1/(6 pi eta a)``, ``1/(8 pi eta a^3)``."""
+    return 1.0 / (6.0 * np.pi * eta * a), 1.0 / (8.0 * np.pi * eta * a * a * a)
+
+
+@njit(cache=True)
 def _pair_coeffs(r: float, a: float, eta: float) -> tuple[float, float, float, float, float]:
     """(tt_I, tt_rr, rr_I, rr_rr, coupling) scalar coefficients at distance r."""
     pi = np.pi
@@ -71,8 +77,7 @@ def rpy_mobility(X: np.ndarray, a: float, eta: float) -> np.ndarray:
     """Full RPY grand mobility (6N, 6N) of spheres at ``X`` (N, 3)."""
     N = X.shape[0]
     M = np.zeros((6 * N, 6 * N))
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     R = 3 * N
     for i in range(N):
         for k in range(3):
@@ -132,8 +137,7 @@ def rpy_apply(
     assembling the dense matrix cost more than the rest of the residual.
     """
     N = X.shape[0]
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     for n in range(N):
         for k in range(3):
             V[n, k] = mt * F[n, k]
@@ -179,8 +183,7 @@ def local_apply(
 ) -> None:
     """``[V; Om] = M_local [F; T]``: self-mobilities only."""
     N = F.shape[0]
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     for n in range(N):
         for k in range(3):
             V[n, k] = mt * F[n, k]
@@ -191,8 +194,7 @@ def local_apply(
 def local_mobility(N: int, a: float, eta: float) -> np.ndarray:
     """Self-only (local drag) mobility (6N, 6N): diagonal, no interactions."""
     M = np.zeros((6 * N, 6 * N))
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     for i in range(3 * N):
         M[i, i] = mt
         M[3 * N + i, 3 * N + i] = mr
@@ -204,8 +206,7 @@ def rpy_mobility_planar(X2: np.ndarray, a: float, eta: float) -> np.ndarray:
     """RPY mobility restricted to in-plane motion (3N, 3N); ``X2`` is (N, 2) [x, z]."""
     N = X2.shape[0]
     M = np.zeros((3 * N, 3 * N))
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     R = 2 * N
     for i in range(N):
         M[2 * i, 2 * i] = mt
@@ -251,8 +252,7 @@ def rpy_mobility_planar(X2: np.ndarray, a: float, eta: float) -> np.ndarray:
 def local_mobility_planar(N: int, a: float, eta: float) -> np.ndarray:
     """Self-only planar mobility (3N, 3N)."""
     M = np.zeros((3 * N, 3 * N))
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     for i in range(2 * N):
         M[i, i] = mt
     for i in range(N):
