@@ -1,4 +1,4 @@
-"""One definition of each filament observable (decision 21 in docs/decisions.md).
+"""One definition of each filament observable (decision 13 in docs/decisions.md).
 
 Known answers: the bending energy of a circular arc against ``K_B kappa^2 L/2``
 (first order in dL from the rigid end half-segments, second order for the

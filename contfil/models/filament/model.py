@@ -95,7 +95,7 @@ class FilamentModel:
             raise ValueError(f"{self.name}: state has shape {u.shape}, expected ({self.dim},)")
         if not np.isfinite(u).all():
             raise NonFiniteError(f"{self.name}.rhs: non-finite state (NaN/inf in u)")
-        par = self.physics.params(float(p[0]) if self.param_names else 0.0)
+        par = self.physics.params_cached(float(p[0]) if self.param_names else 0.0)
         out = self.physics.evaluate(u, par)
         if not np.isfinite(out[0]).all():
             raise NonFiniteError(

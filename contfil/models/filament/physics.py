@@ -142,8 +142,11 @@ class FilamentPhysics:
             par[P_W + scene.N - 1] = 1.0
         self._base = par
         self.par = self.params(scene.strength if strength is None else strength)
-        # configuration-independent mobilities, built once per dimension
+        # configuration-independent mobilities and zero loads, built once per
+        # dimension (read-only: the kernels never write to their inputs)
         self._local: dict[int, Array] = {}
+        self._zeros: dict[tuple[int, ...], Array] = {}
+        self._last: tuple[float, Array] | None = None
 
     @classmethod
     def from_scene(cls, scene: Scene, strength: float | None = None) -> FilamentPhysics:
@@ -180,6 +183,22 @@ class FilamentPhysics:
             par[P_B1] = strength * par[P_SCALE]
         return par
 
+    def params_cached(self, strength: float) -> Array:
+        """:meth:`params`, memoised on the last strength (read-only result).
+
+        Continuation and Jacobian columns call ``rhs`` many times at one
+        strength; this saves the copy on every call.
+        """
+        if self._last is None or self._last[0] != strength:
+            self._last = (strength, self.params(strength))
+        return self._last[1]
+
+    def _zero(self, shape: tuple[int, ...]) -> Array:
+        z = self._zeros.get(shape)
+        if z is None:
+            z = self._zeros[shape] = np.zeros(shape)
+        return z
+
     # -- effects (the rhs route; kernels looked up through their modules) --
     def mobility(self, X: Array) -> Array:
         """Dense mobility at centres ``X``: (N, 3) in 3D, (N, 2) ``[x, z]`` planar."""
@@ -198,10 +217,10 @@ class FilamentPhysics:
         act = self.flags[F_ACT]
         w = par[P_W:]
         if act == ACT_FOLLOWER:
-            return _forces.follower_forces(t, w, par[P_F]), np.zeros(t.shape)
+            return _forces.follower_forces(t, w, par[P_F]), self._zero(t.shape)
         if act == ACT_SQUIRMER:
-            return np.zeros(t.shape), _sq.squirmer_velocity(X, t, w, self.a, par[P_B1], self.eta)
-        return np.zeros(t.shape), np.zeros(t.shape)
+            return self._zero(t.shape), _sq.squirmer_velocity(X, t, w, self.a, par[P_B1], self.eta)
+        return self._zero(t.shape), self._zero(t.shape)
 
     def evaluate(self, u: Array, par: Array) -> tuple[Array, Array, Array]:
         """``(du/dt, lam, vel)`` of the model state ``u`` (planar ``phi`` or 3D ``U``)."""
