@@ -119,7 +119,7 @@ def _step_context(model: FilamentModel, U: np.ndarray, dt: float, jmode: int):
     q = np.empty((N, 4))
     X = np.empty((N, 3))
     rf = np.empty(6 * N)
-    par, flags = st.phys.par, st.phys.flags
+    par, flags = st.par, st.phys.flags
 
     def R(zz: np.ndarray) -> np.ndarray:
         r = np.empty(zz.size)

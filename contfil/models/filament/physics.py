@@ -107,7 +107,8 @@ class FilamentPhysics:
     Attributes
     ----------
     par:
-        ``par`` at the scene's own strength (layout in :mod:`.kernels.effects`).
+        ``par`` at the scene's own strength, or at ``strength`` when given
+        (layout in :mod:`.kernels.effects`); :meth:`params` sets another.
     flags:
         ``[hydrodynamics, actuation, planar]`` (int64).
     """
@@ -162,16 +163,6 @@ class FilamentPhysics:
     def weights(self) -> Array:
         """Activity weight per segment (zeros for a passive scene)."""
         return self.par[P_W:].copy()
-
-    @property
-    def f(self) -> float:
-        """Dimensional follower force per unit weight at ``par`` (0 without)."""
-        return float(self.par[P_F])
-
-    @property
-    def B1(self) -> float:
-        """Dimensional squirmer mode strength at ``par`` (0 without)."""
-        return float(self.par[P_B1])
 
     def params(self, strength: float) -> Array:
         """``par`` with the actuation strength ``strength`` (f or b1) set."""

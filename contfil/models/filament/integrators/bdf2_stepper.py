@@ -161,7 +161,14 @@ class BDF2Stepper:
             raise ValueError(f"BDF2Stepper: dt must be a positive finite number, got {dt!r}")
         if not (np.isfinite(strength)):
             raise NonFiniteError(f"BDF2Stepper: actuation strength is {strength!r}")
-        self.phys = FilamentPhysics(self.scene, strength)
+        # the model's own physics object when there is one (assembled once
+        # from the scene); only the strength is set here
+        phys = getattr(model_or_scene, "physics", None)
+        if not isinstance(phys, FilamentPhysics) or phys.scene is not self.scene:
+            phys = FilamentPhysics(self.scene)
+        self.phys = phys
+        #: the physics parameters at this stepper's strength (kernels/effects.py layout)
+        self.par = phys.params(float(strength))
         self.dt = float(dt)
         self.tol = float(tol)
         self.max_iter = int(max_iter)
@@ -233,7 +240,7 @@ class BDF2Stepper:
         """
         ph = self.phys
         N = ph.N
-        lam = ph.constraint_loads(self._q, ph.par)
+        lam = ph.constraint_loads(self._q, self.par)
         z = np.zeros(6 * N)
         z[3 * (N - 1) :] = lam
         if not np.all(np.isfinite(z)):
@@ -294,7 +301,7 @@ class BDF2Stepper:
                 zp,
                 zpm1,
                 H,
-                self.phys.par,
+                self.par,
                 self.phys.flags,
                 self._opts,
                 self._zmap,

@@ -33,32 +33,6 @@ N_OPTS = 5
 
 
 @njit(cache=True)
-def _fresh_inverse(
-    H: np.ndarray,
-    z: np.ndarray,
-    qk: np.ndarray,
-    coef: np.ndarray,
-    par: np.ndarray,
-    flags: np.ndarray,
-    jmode: int,
-    zmap: np.ndarray,
-    rmap: np.ndarray,
-    scale: np.ndarray,
-) -> bool:
-    """H = J0(z)^{-1}; False if J0 is singular or non-finite."""
-    J = approx_jacobian(z, qk, coef, par, flags, jmode, zmap, rmap, scale)
-    for i in range(J.shape[0]):
-        for k in range(J.shape[1]):
-            if not np.isfinite(J[i, k]):
-                return False
-    try:
-        H[:, :] = np.linalg.inv(J)
-    except Exception:  # singular J0
-        return False
-    return True
-
-
-@njit(cache=True)
 def _refresh(
     H: np.ndarray,
     builds: int,
@@ -74,11 +48,18 @@ def _refresh(
     rmap: np.ndarray,
     scale: np.ndarray,
 ) -> int:
-    """Rebuild ``H`` at ``z``: OK, or ``over`` when the refreshes are used up,
-    or NONFINITE when ``J0`` cannot be inverted."""
+    """``H = J0(z)^{-1}``: OK, or ``over`` when the ``builds`` so far exceed
+    ``max_refresh``, or NONFINITE when ``J0`` is non-finite or singular."""
     if builds > max_refresh:
         return over
-    if not _fresh_inverse(H, z, qk, coef, par, flags, jmode, zmap, rmap, scale):
+    J = approx_jacobian(z, qk, coef, par, flags, jmode, zmap, rmap, scale)
+    for i in range(J.shape[0]):
+        for k in range(J.shape[1]):
+            if not np.isfinite(J[i, k]):
+                return NONFINITE
+    try:
+        H[:, :] = np.linalg.inv(J)
+    except Exception:  # singular J0
         return NONFINITE
     return OK
 
@@ -132,7 +113,9 @@ def solve_step(
         return NONFINITE, 0, res, 0
     builds = 0
     if not have_H and res > tol:
-        if not _fresh_inverse(H, z, qk, coef, par, flags, jmode, zmap, rmap, scale):
+        # the first build of a step is always allowed (builds = 0)
+        if _refresh(H, 0, max_refresh, NONFINITE, z, qk, coef, par, flags, jmode,
+                    zmap, rmap, scale) != OK:
             return NONFINITE, 0, res, 1
         builds = 1
     it = 0
