@@ -5,6 +5,12 @@ of the cores)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_filament.py            # all
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_filament.py --no-radau  # table only
+    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_filament.py --quick --save /tmp/a.npz
+
+``--quick`` runs part 1 and a short part 2 (the settled whirling state, its
+period and the BDF2 end states at 100..800 steps, no Radau); ``--save``
+writes the physics outputs (states, periods) to an ``.npz`` so two versions
+of the code can be compared to round-off (``--compare OTHER.npz``).
 
 All times are CPU seconds of this process (``time.process_time``), so that
 other jobs on a shared machine inflate them less than wall-clock time.
@@ -29,6 +35,7 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
+import json  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
@@ -84,16 +91,52 @@ def _time(fn, min_time: float = 0.3) -> float:
     return best
 
 
-def step_cost(scene: Scene, u0: np.ndarray, dt: float, **kw) -> tuple[float, float]:
+#: physics outputs of this run (``--save``): name -> array
+OUT: dict[str, np.ndarray] = {}
+
+
+def step_cost(scene: Scene, u0: np.ndarray, dt: float, key: str = "",
+              **kw) -> tuple[float, float]:
     """(microseconds per step, mean Broyden iterations) over steady stepping."""
     st = BDF2Stepper(scene, dt, **kw)
     st.reset(u0)
     st.step(20)
     nsteps = 200
     t0 = time.process_time()
-    st.step(nsteps)
+    U = st.step(nsteps)
     el = time.process_time() - t0
+    if key:
+        OUT[f"state/{key}"] = np.array(U)
     return el / nsteps * 1e6, float(st.last_diagnostics.iterations.mean())
+
+
+def floor_cost(n: int = N) -> float:
+    """Microseconds of the irreducible work of one 3D RPY step at ``n`` segments.
+
+    One dense RPY assembly, one LU solve of the ``3(n-1)+6`` constraint
+    system and one ``6n x 6n`` matrix-vector product: what any implicit step
+    of this model must do at least once (issue 10's "floor").
+    """
+    from scipy.linalg import lu_factor, lu_solve
+
+    from contfil.models.filament.kernels import configuration, rpy_mobility
+
+    _, _, X = configuration(bent_state(), 1.0 / n)
+    nc = 3 * (n - 1) + 6
+    A = np.random.default_rng(0).normal(size=(nc, nc)) + nc * np.eye(nc)
+    b = np.ones(nc)
+    v = np.ones(6 * n)
+
+    def work() -> None:
+        M = rpy_mobility(X, 1.0 / (2.2 * n), 1.0)  # a = dL/2.2, the paper's spacing
+        lu_solve(lu_factor(A), b)
+        M @ v
+
+    return _time(work) * 1e6
+
+
+#: headline figures, printed as the final JSON line
+SUMMARY: dict[str, object] = {}
 
 
 def part1() -> None:
@@ -118,7 +161,8 @@ def part1() -> None:
                     name=name,
                 )
                 u0 = project_planar(U3) if dim == "planar" else U3
-                us, its = step_cost(sc, u0, 1e-3)
+                us, its = step_cost(sc, u0, 1e-3, key=f"{name}/{dim}/{hyd}/{on}")
+                SUMMARY.setdefault("us_per_step", {})[f"{name}/{dim}/{hyd}/{on}"] = round(us, 1)
                 m = FilamentModel(sc)
                 p = m.default_params()
                 ur = _time(lambda m=m, u0=u0, p=p: m.rhs(u0, p)) * 1e6
@@ -129,7 +173,14 @@ def part1() -> None:
     sc = Scene(N=N, strength=20.0)
     print("\nJ0 variants, tip_ff 3D RPY (dt = 1e-3):")
     for jac, reuse in (("self", False), ("self", True), ("full", False), ("full", True)):
-        us, its = step_cost(sc, U3, 1e-3, jacobian=jac, reuse=reuse)
+        us, its = step_cost(sc, U3, 1e-3, key=f"J0/{jac}/{reuse}", jacobian=jac, reuse=reuse)
+        if (jac, reuse) == ("full", True):
+            fl = floor_cost()
+            SUMMARY["us_per_step_default"] = round(us, 1)
+            SUMMARY["floor_us"] = round(fl, 1)
+            SUMMARY["step_vs_floor"] = round(us / fl, 2)
+            print(f"  floor (RPY assembly + constraint LU + matvec): {fl:7.0f} us; "
+                  f"default step / floor = {us / fl:.2f}")
         tag = (
             " (paper: self-mobility J0, new every step)"
             if (jac, reuse) == ("self", False)
@@ -161,7 +212,7 @@ def _interp_time(errs: np.ndarray, times: np.ndarray, target: float) -> float:
     return float(np.exp(np.interp(np.log(target), le, lt)))
 
 
-def part2() -> None:
+def part2(quick: bool = False) -> None:
     print("\nPart 2: one period of whirling (tip FF), Radau vs BDF2 at equal accuracy")
     m = FilamentModel(Scene(N=N, strength=0.0, name="tip_ff"))
     fc, om_c = critical_f(m, 25.0, 45.0)
@@ -186,6 +237,15 @@ def part2() -> None:
         f"{omega:.4f}, period T = {Tp:.5f}"
     )
     uw = tr.states[-1]
+    OUT["whirl/fc_omega_f_T"] = np.array([fc, om_c, f, omega, Tp])
+    OUT["whirl/settled"] = np.array(uw)
+    OUT["whirl/tip"] = np.array(tr.observables["tip"])
+    SUMMARY["whirl_period"] = Tp
+    if quick:
+        for n in (100, 200, 400, 800):
+            OUT[f"whirl/flow{n}"] = flow(m, uw, p, Tp, steps=n)
+        OUT["whirl/flow200R"] = flow(m, uw, p, Tp, steps=200, richardson=True)
+        return
     # reference end state: Richardson extrapolation of two fine BDF2 runs
     n_ref = 12800
     a = flow(m, uw, p, Tp, steps=n_ref)
@@ -247,11 +307,36 @@ def part2() -> None:
         )
 
 
+def compare(a: str, b: str) -> float:
+    """Print the largest relative difference of every array saved in both files."""
+    A, B = np.load(a), np.load(b)
+    worst = 0.0
+    for k in sorted(set(A.files) & set(B.files)):
+        x, y = A[k], B[k]
+        d = float(np.max(np.abs(x - y)) / max(np.max(np.abs(x)), 1e-300))
+        worst = max(worst, d)
+        print(f"  {k:32s} max |diff| / max |x| = {d:.1e}")
+    only = sorted(set(A.files) ^ set(B.files))
+    if only:
+        print(f"  in one file only: {only}")
+    print(f"largest relative difference: {worst:.1e}")
+    return worst
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--no-radau", action="store_true", help="skip part 2")
     ap.add_argument("--only-radau", action="store_true", help="skip part 1")
+    ap.add_argument("--quick", action="store_true",
+                    help="part 1 and a short part 2 (no reference, no Radau)")
+    ap.add_argument("--save", metavar="NPZ", help="write the physics outputs here")
+    ap.add_argument("--compare", nargs=2, metavar=("A", "B"),
+                    help="compare two --save files and exit")
     args = ap.parse_args()
+    if args.compare:
+        worst = compare(*args.compare)
+        print(json.dumps({"max_relative_difference": worst}))
+        return
     # compile once before timing
     st = BDF2Stepper(Scene(N=N, strength=1.0), 1e-3)
     st.reset(bent_state())
@@ -259,7 +344,10 @@ def main() -> None:
     if not args.only_radau:
         part1()
     if not args.no_radau:
-        part2()
+        part2(quick=args.quick)
+    if args.save:
+        np.savez(args.save, **OUT)
+    print(json.dumps(SUMMARY))
 
 
 if __name__ == "__main__":

@@ -41,7 +41,6 @@ from contfil.engine.continuation.driver import Continuation, ContinuationSetting
 from contfil.engine.events.cycles import subspace_breaking_multipliers
 from contfil.engine.problems.rotating_wave import rotating_wave_by_shooting
 from contfil.models.filament import FilamentModel
-from contfil.models.filament import stepper as fstepper
 from contfil.models.filament.cycles import (
     FixedStepFlow,
     double_hopf,
@@ -49,6 +48,8 @@ from contfil.models.filament.cycles import (
     solve_beating,
     solve_whirling,
 )
+from contfil.models.filament.integrators import STEPS_PER_PERIOD
+from contfil.models.filament.integrators import bdf2 as fstepper
 
 ROOT = Path(__file__).resolve().parents[1]
 # the engine's event name, and the filament-only one of the stored runs
@@ -175,7 +176,7 @@ def _floquet_summary(st: Any) -> dict[str, Any]:
 def mean_energy(planar_model: FilamentModel, phi: np.ndarray, p: float, T: float,
                 steps: int) -> float:
     tr = fstepper.trajectory(planar_model, phi, np.array([p]), T, steps=steps, out_every=1)
-    return float(np.mean([planar_model.bending_energy(s) for s in tr.states[:-1]]))
+    return float(np.mean(tr.observables["bending_energy"][:-1]))
 
 
 def beating(model: FilamentModel, dh: dict[str, Any], cfg: dict[str, Any], quick: bool,
@@ -478,7 +479,8 @@ def main() -> None:
     ap.add_argument("--part", default="whirling,shoot,beating,dt",
                     help="comma list of whirling, shoot, beating, dt")
     ap.add_argument("--quick", action="store_true", help="short smoke run")
-    ap.add_argument("--steps", type=int, default=400, help="BDF2 steps per period (paper: 400)")
+    ap.add_argument("--steps", type=int, default=STEPS_PER_PERIOD,
+                    help=f"BDF2 steps per period (paper: {STEPS_PER_PERIOD})")
     ap.add_argument("--budget", type=float, default=np.inf,
                     help="wall-time budget (s) of the beating continuation")
     ap.add_argument("--table", action="store_true", help="print the markdown tables")

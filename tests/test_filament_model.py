@@ -243,11 +243,28 @@ def test_jacobian_matches_directional_derivative(models: dict[str, FilamentModel
 
 
 def test_flow_hook_delegates_to_stepper() -> None:
-    import importlib.util
+    """model.flow is the BDF2 trajectory's end state at the one default resolution."""
+    from contfil.models.filament.integrators import STEPS_PER_PERIOD, default_steps
+    from contfil.models.filament.integrators.bdf2 import trajectory
 
     m = FilamentModel(load_scene(BR / "tip_ff.toml"))
-    has = importlib.util.find_spec("contfil.models.filament.integrators.bdf2") is not None
-    assert hasattr(m, "flow") == has
+    rng = np.random.default_rng(5)
+    u, p, T = rng.normal(size=57) * 0.1, np.array([30.0]), 0.02
+    assert default_steps(T) == STEPS_PER_PERIOD == m.flow_steps_min
+    end = trajectory(m, u, p, T, steps=STEPS_PER_PERIOD, out_every=STEPS_PER_PERIOD).states[-1]
+    got = m.flow(u, p, T)
+    assert np.max(np.abs(got - end)) <= 1e-14 * np.max(np.abs(end))
+    # a wrong horizon changes the result (the check above can fail)
+    assert np.max(np.abs(m.flow(u, p, 1.01 * T) - got)) > 1e-4 * np.max(np.abs(got - u))
+    # `steps` is honoured, not ignored: 100 steps differ from 400 at O(dt^2)
+    coarse = m.flow(u, p, T, steps=100)
+    end50 = trajectory(m, u, p, T, steps=100, out_every=100).states[-1]
+    assert np.max(np.abs(coarse - end50)) <= 1e-14 * np.max(np.abs(end50))
+    assert np.max(np.abs(coarse - got)) > 1e-9
+    # long horizons refine to dt <= DT_MAX; an unknown keyword is an error
+    assert default_steps(1.0) == 2000
+    with pytest.raises(TypeError):
+        m.flow(u, p, T, step=50)
 
 
 @pytest.mark.parametrize("name", ["tip_ff", "dis_sf"])

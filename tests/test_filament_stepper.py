@@ -17,7 +17,6 @@ from contfil.errors import ConvergenceError, NonFiniteError
 from contfil.models.filament import FilamentModel, Scene
 from contfil.models.filament.integrators.bdf2 import (
     BDF2Stepper,
-    _maps,
     attach_flow,
     embed_planar,
     flow,
@@ -25,7 +24,9 @@ from contfil.models.filament.integrators.bdf2 import (
     rotate_state_z,
     trajectory,
 )
-from contfil.models.filament.kernels import bdf2_solver as K
+from contfil.models.filament.integrators.bdf2_stepper import _maps
+from contfil.models.filament.kernels import bdf2_jacobian, bdf2_residual
+from contfil.models.filament.kernels import rpy as krpy
 from contfil.models.filament.kernels.broyden import broyden_solve
 
 N = 20
@@ -97,7 +98,7 @@ def test_matrix_free_rpy_equals_dense_mobility() -> None:
     rng = np.random.default_rng(0)
     F, T = rng.standard_normal((N, 3)), rng.standard_normal((N, 3))
     V, Om = np.empty((N, 3)), np.empty((N, 3))
-    K.rpy_apply(X, a, 1.0, F, T, V, Om)
+    krpy.rpy_apply(X, a, 1.0, F, T, V, Om)
     ref = rpy_mobility(X, a, 1.0) @ np.concatenate([F.ravel(), T.ravel()])
     got = np.concatenate([V.ravel(), Om.ravel()])
     assert np.max(np.abs(got - ref)) < 1e-12 * np.max(np.abs(ref))
@@ -118,34 +119,16 @@ def _step_context(model: FilamentModel, U: np.ndarray, dt: float, jmode: int):
     q = np.empty((N, 4))
     X = np.empty((N, 3))
     rf = np.empty(6 * N)
-    hydro = int(st._opts[K.O_HYDRO])
+    par, flags = st.par, st.phys.flags
 
     def R(zz: np.ndarray) -> np.ndarray:
         r = np.empty(zz.size)
-        K.residual(
-            zz,
-            r,
-            st._q,
-            st._x,
-            st._xm1,
-            st._zp,
-            coef,
-            st._physarr,
-            st.phys.wff,
-            st.phys.wsf,
-            hydro,
-            zmap,
-            rmap,
-            scale,
-            q,
-            X,
-            rf,
+        bdf2_residual.residual(
+            zz, r, st._q, st._x, st._xm1, st._zp, coef, par, flags, zmap, rmap, scale, q, X, rf
         )
         return r
 
-    J0 = K.approx_jacobian(
-        z, st._q, coef, st._physarr, st.phys.wff, st.phys.wsf, hydro, jmode, zmap, rmap, scale
-    )
+    J0 = bdf2_jacobian.approx_jacobian(z, st._q, coef, par, flags, jmode, zmap, rmap, scale)
     return z, R, J0
 
 
@@ -372,8 +355,10 @@ def test_failed_step_is_rescued_by_substeps() -> None:
     assert np.array_equal(tr.states[-1], U)
     assert np.all(np.isfinite(tr.states)) and np.max(np.abs(tr.states[1] - U0)) > 0
     half = flow(m, U0, p, 2e-4, steps=8)  # needs no rescue
-    # the filament moves by ~0.6 in these 4 steps; the runs agree to a few per cent
-    assert np.max(np.abs(U - half)) < 0.1 * np.max(np.abs(half - U0))
+    # the filament moves by ~0.6 in these 4 steps; the two runs agree to 3.7 %
+    # (measured; each is ~8 % from a 64-step reference: the rescued step is
+    # first order, the 8-step run's dt is still large for this violent start)
+    assert np.max(np.abs(U - half)) < 0.05 * np.max(np.abs(half - U0))
 
 
 # --------------------------------------------------------------------------

@@ -29,9 +29,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import brentq
 
+from contfil.engine.events.standard import normalise_phase as _engine_normalise_phase
 from contfil.errors import ContfilError, ConvergenceError
 from contfil.protocol import InvariantSubspace, Symmetries
 
+from .integrators import STEPS_PER_PERIOD
 from .integrators import bdf2 as _stepper
 from .model import FilamentModel
 
@@ -58,7 +60,9 @@ class FixedStepFlow:
     ``flow_calls`` counts time-stepper calls (the honest cost unit).
     """
 
-    def __init__(self, model: FilamentModel, steps: int = 400, **stepper_kw: Any) -> None:
+    def __init__(
+        self, model: FilamentModel, steps: int = STEPS_PER_PERIOD, **stepper_kw: Any
+    ) -> None:
         if int(steps) < 1:
             raise ValueError(f"FixedStepFlow: steps must be >= 1, got {steps!r}")
         self.base = model
@@ -128,12 +132,9 @@ def double_hopf(model: FilamentModel, bracket: tuple[float, float],
 
 
 def normalise_phase(v: NDArray[np.complex128]) -> NDArray[np.complex128]:
-    """Multiply by a phase so that ``Re v . Im v = 0`` and ``|Re v| >= |Im v|``."""
-    a, b = v.real, v.imag
-    phi = 0.5 * np.arctan2(-2 * a @ b, a @ a - b @ b)
-    w = v * np.exp(1j * phi)
-    if np.linalg.norm(w.imag) > np.linalg.norm(w.real):
-        w = w * 1j
+    """The engine's phase normalisation (``Re v . Im v = 0``, ``|Re v| >= |Im v|``),
+    scaled to unit norm (the engine's keeps ``|v|``)."""
+    w = _engine_normalise_phase(v)
     return w / np.linalg.norm(w)
 
 

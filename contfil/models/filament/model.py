@@ -23,9 +23,10 @@ from contfil.protocol import (
     Symmetries,
 )
 
-from .effects import build_effects
+from .integrators import DT_MAX, STEPS_PER_PERIOD, default_steps
 from .kernels import constraints as _kc
 from .kernels import geometry as _geo
+from .physics import FilamentPhysics, bending_energy, embed_planar, frame_observables
 from .scene import Scene, load_scene
 
 Array = np.ndarray
@@ -65,9 +66,8 @@ class FilamentModel:
         pn = scene.param_name
         self.param_names: tuple[str, ...] = () if pn is None else (pn,)
         self._defaults = np.array([scene.strength]) if pn is not None else np.zeros(0)
-        self._hyd, self._act = build_effects(scene)
-        self._KB = float(scene.KB)
-        self._KT = float(scene.KT)
+        #: the one physics object: rhs, the integrators and the observables use it
+        self.physics = FilamentPhysics(scene)
         self.symmetries = self._build_symmetries()
         self.flow = self._flow
 
@@ -95,17 +95,8 @@ class FilamentModel:
             raise ValueError(f"{self.name}: state has shape {u.shape}, expected ({self.dim},)")
         if not np.isfinite(u).all():
             raise NonFiniteError(f"{self.name}.rhs: non-finite state (NaN/inf in u)")
-        s = float(p[0]) if self.param_names else 0.0
-        if self.planar:
-            t, X = _kc.planar_configuration(u, self.dL)
-            Mob = self._hyd.mobility(X)
-            FA, Vsf = self._act.loads(X, t, s)
-            out = _kc.rhs_planar(u, t, Mob, FA, Vsf, self.dL, self._KB)
-        else:
-            q, t, X = _geo.configuration(u, self.dL)
-            Mob = self._hyd.mobility(X)
-            FA, Vsf = self._act.loads(X, t, s)
-            out = _kc.rhs3d(u, q, t, Mob, FA, Vsf, self.dL, self._KB, self._KT)
+        par = self.physics.params_cached(float(p[0]) if self.param_names else 0.0)
+        out = self.physics.evaluate(u, par)
         if not np.isfinite(out[0]).all():
             raise NonFiniteError(
                 f"{self.name}.rhs: non-finite vector field at |u|={np.linalg.norm(u):.3g}"
@@ -128,32 +119,33 @@ class FilamentModel:
             J[:, i] = (fp - fm) / (2.0 * h)
         return J
 
-    #: Default resolution of ``flow`` when neither ``steps`` nor ``dt`` is
-    #: given: the paper's T/400 per period, refined so no step exceeds
-    #: ``flow_dt_max`` on long horizons. The step count only changes at
-    #: isolated T, so the map stays smooth in T where shooting uses it.
-    flow_steps_min: int = 400
-    flow_dt_max: float = 5e-4
+    #: Resolution of ``flow`` when neither ``steps`` nor ``dt`` is given (read
+    #: by the explorer): :func:`~contfil.models.filament.integrators.default_steps`,
+    #: max(STEPS_PER_PERIOD, ceil(T/DT_MAX)).
+    flow_steps_min: int = STEPS_PER_PERIOD
+    flow_dt_max: float = DT_MAX
 
-    def _flow(self, u: Array, p: Array, T: float, **kwargs: Any) -> Array:
-        """Time-T map, delegated to :mod:`contfil.models.filament.integrators.bdf2`."""
+    def _flow(
+        self, u: Array, p: Array, T: float, steps: int | None = None, dt: float | None = None,
+        **stepper_kw: Any,
+    ) -> Array:
+        """Time-T map by BDF2 (:func:`contfil.models.filament.integrators.bdf2.flow`).
+
+        ``steps`` or ``dt`` set the resolution; neither: ``default_steps(T)``.
+        ``stepper_kw`` go to the stepper (``jacobian``, ``tol``, ...); an
+        unknown keyword raises ``TypeError`` there, never silently ignored.
+        """
         from .integrators import bdf2 as stepper
 
-        if kwargs.get("steps") is None and kwargs.get("dt") is None:
-            kwargs["steps"] = max(
-                self.flow_steps_min, int(np.ceil(abs(T) / self.flow_dt_max - 1e-9))
-            )
-        return stepper.flow(self, u, p, T, **kwargs)
+        if steps is None and dt is None:
+            steps = default_steps(T)
+        return stepper.flow(self, u, p, T, steps=steps, dt=dt, **stepper_kw)
 
     # -- geometry helpers -------------------------------------------------
     def full_state(self, u: Array) -> Array:
         """The 3D state ``U`` (planar states are embedded as ``U_n = (0, phi_n, 0)``)."""
         u = np.asarray(u, dtype=float)
-        if not self.planar:
-            return u
-        U = np.zeros(3 * (self.N - 1))
-        U[1::3] = u
-        return U
+        return embed_planar(u) if self.planar else u
 
     def tangents(self, u: Array) -> Array:
         """Unit tangents (N, 3)."""
@@ -217,37 +209,22 @@ class FilamentModel:
         return {"Lam": Lam, "s": s, "tension": ten, "shear": shear, "Fc": Fc, "Tc": Tc}
 
     def bending_energy(self, u: Array) -> float:
-        """``E = int 1/2 |d^2Y/ds^2|^2 ds ~ sum_n |t_{n+1} - t_n|^2 / (2 dL)``.
-
-        (``d^2Y/ds^2 = dt/ds`` is differenced across each joint, length dL.)
-        In units of ``K_B/L`` when multiplied by K_B (=1 here).
-        """
-        t = self.tangents(u)
-        d = t[1:] - t[:-1]
-        return float(np.sum(d * d) / (2.0 * self.dL))
+        """Bending energy of state ``u``: :func:`.physics.bending_energy`
+        (``K_B sum_n |t_{n+1} - t_n|^2 / (2 dL)``, the one discrete form)."""
+        return bending_energy(self.tangents(u), self.dL, self.physics.KB)
 
     def observables(self, u: Array, p: Array) -> dict[str, Any]:
-        """Bending energy, tip position (free end ``X_N + dL/2 t_N``), tip angle.
+        """:func:`.physics.frame_observables` of ``u`` and the state norm.
 
-        ``tip_angle`` is ``atan2(y, x)`` of the free end (azimuth about e3),
-        ``tip_r`` its distance from the e3 axis.
+        Bending energy, tip position (free end ``X_N + dL/2 t_N``), its
+        azimuth ``tip_angle`` and distance ``tip_r`` from the e3 axis.
         """
         u = np.asarray(u, dtype=float)
         if not np.isfinite(u).all():
             raise NonFiniteError(f"{self.name}.observables: non-finite state")
-        t = self.tangents(u)
-        X = _geo.positions(t, self.dL)
-        tip = X[-1] + 0.5 * self.dL * t[-1]
-        d = t[1:] - t[:-1]
-        return {
-            "bending_energy": float(np.sum(d * d) / (2.0 * self.dL)),
-            "tip_x": float(tip[0]),
-            "tip_y": float(tip[1]),
-            "tip_z": float(tip[2]),
-            "tip_r": float(np.hypot(tip[0], tip[1])),
-            "tip_angle": float(np.arctan2(tip[1], tip[0])),
-            "norm": float(np.linalg.norm(u)),
-        }
+        obs: dict[str, Any] = frame_observables(self.tangents(u), self.dL, self.physics.KB)
+        obs["norm"] = float(np.linalg.norm(u))
+        return obs
 
     # -- symmetries -------------------------------------------------------
     def _build_symmetries(self) -> Symmetries:

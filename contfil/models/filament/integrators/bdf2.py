@@ -37,7 +37,7 @@ started from the linear extrapolation ``2 z^k - z^{k-1}`` of increments and
 loads (first step: zero increments and the multipliers of the continuous
 constraint problem at the initial state).
 ``H0 = J0^{-1}`` comes from an analytic approximate Jacobian
-(:func:`~contfil.models.filament.kernels.bdf2_solver.approx_jacobian`):
+(:func:`~contfil.models.filament.kernels.bdf2_jacobian.approx_jacobian`):
 
 - ``jacobian="self"``: self-mobilities only, the paper's choice. With RPY
   its chord map is not a contraction (interactions are O(1) at ``dL =
@@ -67,6 +67,10 @@ of its inputs where no rescue happens (the step indices are recorded in
 :class:`~contfil.errors.ConvergenceError` or
 :class:`~contfil.errors.NonFiniteError` names the step, the time and the
 residual; the stepper never returns a partially converged state.
+The stepper object is :class:`~contfil.models.filament.integrators.bdf2_stepper.BDF2Stepper`
+(re-exported here); this module holds the runs built on it: :func:`flow`,
+:func:`trajectory`, :func:`attach_flow`. Their default resolution is
+:func:`contfil.models.filament.integrators.default_steps`.
 """
 
 from __future__ import annotations
@@ -79,487 +83,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.errors import ConvergenceError, NonFiniteError
+from contfil.errors import NonFiniteError
 
-from ..kernels import bdf2_solver as _k
-from ..kernels import broyden as _br
-from ..kernels import constraints as _kc
-from ..kernels import elastic as _elastic
-from ..kernels import forces as _forces
-from ..kernels import rpy as _rpy
-from ..kernels import squirmer as _sq
-from ..kernels.geometry import frames_from_state, positions, state_from_frames, tangents
+from ..kernels.geometry import frames_from_state, state_from_frames, tangents
+from ..physics import FilamentPhysics, embed_planar, frame_observables, project_planar
 from ..scene import Scene
+from . import default_steps
+from .bdf2_stepper import BDF2Stepper, StepDiagnostics
 
 Array = NDArray[np.float64]
-
-#: Steps per ``flow`` call when neither ``steps`` nor ``dt`` is given: the
-#: paper's ``dt = T/400`` when ``T`` is a period.
-DEFAULT_FLOW_STEPS = 400
-
-
-@dataclass(frozen=True)
-class FilamentPhysics:
-    """Numbers the stepper needs, taken from a scene and a strength value.
-
-    ``f`` is the follower force per loaded segment and ``B1`` the squirmer
-    mode strength, both dimensional (``f K_B/L^2``, ``b1 K_B/(eta L^3)``).
-    ``wff``/``wsf`` are the per-segment activity weights.
-    """
-
-    N: int
-    dL: float
-    a: float
-    eta: float
-    KB: float
-    KT: float
-    hydro: str
-    f: float
-    B1: float
-    wff: Array
-    wsf: Array
-    planar: bool
-
-    @classmethod
-    def from_scene(cls, scene: Scene, strength: float | None = None) -> FilamentPhysics:
-        """Physics of ``scene`` with actuation strength ``strength`` (f or b1)."""
-        s = scene.strength if strength is None else float(strength)
-        w = np.zeros(scene.N)
-        if scene.profile == "tip":
-            w[-1] = 1.0
-        else:
-            w[:] = 1.0
-        f = B1 = 0.0
-        wff = np.zeros(scene.N)
-        wsf = np.zeros(scene.N)
-        if scene.actuation == "follower_force":
-            f = s * scene.KB / scene.L**2
-            wff = w
-        elif scene.actuation == "squirmer":
-            B1 = s * scene.KB / (scene.eta * scene.L**3)
-            wsf = w
-        return cls(
-            N=scene.N,
-            dL=scene.dL,
-            a=scene.a,
-            eta=scene.eta,
-            KB=scene.KB,
-            KT=scene.KT,
-            hydro=scene.hydrodynamics,
-            f=f,
-            B1=B1,
-            wff=wff,
-            wsf=wsf,
-            planar=scene.planar,
-        )
-
-    def phys_array(self) -> Array:
-        return np.array([self.dL, self.a, self.eta, self.KB, self.KT, self.f, self.B1])
-
-    @property
-    def dim(self) -> int:
-        """Length of the model state (``N-1`` planar, ``3(N-1)`` in 3D)."""
-        return self.N - 1 if self.planar else 3 * (self.N - 1)
-
-
-def _maps(N: int, planar: bool) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """(zmap, rmap): reduced -> full unknown / equation indices."""
-    if not planar:
-        idx = np.arange(6 * N, dtype=np.int64)
-        return idx, idx.copy()
-    z: list[int] = [3 * (m - 1) + 1 for m in range(1, N)]  # u_y
-    oL = 3 * (N - 1)
-    for j in range(N - 1):  # Lam_x, Lam_z
-        z += [oL + 3 * j, oL + 3 * j + 2]
-    z += [6 * (N - 1), 6 * (N - 1) + 2, 6 * N - 2]  # Fc_x, Fc_z, Tc_y
-    r: list[int] = []
-    for n in range(N):  # x, z positions
-        r += [3 * n, 3 * n + 2]
-    r += [3 * N + 3 * n + 1 for n in range(N)]  # e2 rotations
-    return np.array(z, dtype=np.int64), np.array(r, dtype=np.int64)
-
-
-def embed_planar(phi: Array) -> Array:
-    """3D state ``U_n = (0, phi_n, 0)`` of a planar state ``phi`` (N-1,)."""
-    phi = np.asarray(phi, dtype=float)
-    U = np.zeros(3 * phi.shape[0])
-    U[1::3] = phi
-    return U
-
-
-def project_planar(U: Array) -> Array:
-    """Planar state ``phi_n = U_n,y`` of a 3D state in the x-z plane."""
-    return np.asarray(U, dtype=float)[1::3].copy()
-
-
-def _relative_rotvec(qa: Array, qb: Array) -> Array:
-    """Rotation vectors ``log(qa_n . qb_n^*)`` (n, 3), ``|.| <= pi``."""
-    w = np.einsum("ij,ij->i", qa, qb)  # scalar part of qa . conj(qb)
-    v = qb[:, :1] * qa[:, 1:] - qa[:, :1] * qb[:, 1:] - np.cross(qa[:, 1:], qb[:, 1:])
-    sgn = np.where(w < 0, -1.0, 1.0)
-    w, v = w * sgn, v * sgn[:, None]
-    sn = np.linalg.norm(v, axis=1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        fac = np.where(sn > 1e-12, 2.0 * np.arctan2(sn, w) / np.where(sn > 0, sn, 1.0), 2.0 / w)
-    return v * fac[:, None]
-
-
-def _scene_of(obj: Any) -> Scene:
-    if isinstance(obj, Scene):
-        return obj
-    sc = getattr(obj, "scene", None)
-    if isinstance(sc, Scene):
-        return sc
-    raise TypeError(f"expected a Scene or a model with a .scene attribute, got {type(obj)!r}")
-
-
-def _strength_from_params(model: Any, scene: Scene, p: Array | None) -> float:
-    """Actuation strength from the model's parameter vector (or the scene's)."""
-    if p is None:
-        return scene.strength
-    p = np.atleast_1d(np.asarray(p, dtype=float))
-    names = tuple(getattr(model, "param_names", ()) or ())
-    pname = scene.param_name
-    if pname is not None and pname in names:
-        return float(p[names.index(pname)])
-    if p.size >= 1:
-        return float(p[0])
-    return scene.strength
-
-
-@dataclass
-class StepDiagnostics:
-    """Per-step solver record (arrays of length ``steps``)."""
-
-    iterations: Array
-    residual: Array
-    constraint: Array
-    kinematic: Array
-    refreshes: Array
-
-    @classmethod
-    def from_diag(cls, d: Array) -> StepDiagnostics:
-        return cls(
-            d[:, _k.D_ITERS].astype(int),
-            d[:, _k.D_RES].copy(),
-            d[:, _k.D_CONSTR].copy(),
-            d[:, _k.D_KIN].copy(),
-            d[:, _k.D_REFRESH].astype(int),
-        )
-
-
-class BDF2Stepper:
-    """Fixed-step geometric BDF2 integrator of one filament scene.
-
-    Parameters
-    ----------
-    model_or_scene:
-        A :class:`Scene`, or a model exposing ``.scene`` (FilamentModel).
-    dt:
-        Time step.
-    tol:
-        Broyden tolerance on the infinity norm of the scaled step residual.
-    max_iter:
-        Broyden iterations allowed per step (all ``J0`` refreshes together).
-    max_refresh:
-        Re-evaluations of the approximate Jacobian allowed per step.
-    p:
-        Parameter vector of the model (its actuation strength is used);
-        ``None`` uses the scene's strength.
-    strength:
-        Alternatively the actuation strength itself (f or b1).
-    jacobian:
-        ``"full"`` (default): approximate Jacobian with the scene's full
-        mobility matrix and squirming interactions frozen at the predictor;
-        ``"self"``: with self-mobilities only (the paper's choice; 4-5x more
-        Broyden iterations with RPY, see docs/performance.md).
-    max_halvings:
-        Rescue of a failed step by ``2..2^max_halvings`` sub-steps (0: off).
-    reuse:
-        False: a new ``J0`` is built and inverted every step (the paper's
-        form). True: the Broyden-updated inverse is carried to the next step
-        and rebuilt only when a step needed more than ``reuse_limit``
-        iterations or stalled.
-
-    Examples
-    --------
-    >>> st = BDF2Stepper(Scene(N=10, strength=1.0), dt=1e-3)   # doctest: +SKIP
-    >>> st.reset(U0); U1 = st.step(10)                          # doctest: +SKIP
-    """
-
-    def __init__(
-        self,
-        model_or_scene: Any,
-        dt: float,
-        tol: float = 1e-12,
-        max_iter: int = 60,
-        max_refresh: int = 3,
-        p: Array | None = None,
-        strength: float | None = None,
-        jacobian: str = "full",
-        reuse: bool = True,
-        reuse_limit: int = 8,
-        max_halvings: int = 3,
-    ) -> None:
-        self.scene = _scene_of(model_or_scene)
-        if strength is None:
-            strength = _strength_from_params(model_or_scene, self.scene, p)
-        if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"BDF2Stepper: dt must be a positive finite number, got {dt!r}")
-        if not (np.isfinite(strength)):
-            raise NonFiniteError(f"BDF2Stepper: actuation strength is {strength!r}")
-        self.phys = FilamentPhysics.from_scene(self.scene, strength)
-        self.dt = float(dt)
-        self.tol = float(tol)
-        self.max_iter = int(max_iter)
-        self.max_refresh = int(max_refresh)
-        self.max_halvings = int(max_halvings)
-        self.rescued: list[int] = []
-        N = self.phys.N
-        self._zmap, self._rmap = _maps(N, self.phys.planar)
-        if jacobian not in ("self", "full"):
-            raise ValueError(f"BDF2Stepper: jacobian must be 'self' or 'full', got {jacobian!r}")
-        hydro = 1 if self.phys.hydro == "rpy" else 0
-        jmode = 1 if jacobian == "full" else 0
-        self._opts = np.array(
-            [hydro, jmode, int(bool(reuse)), self.max_iter, self.max_refresh, int(reuse_limit)],
-            dtype=np.int64,
-        )
-        self._physarr = self.phys.phys_array()
-        self._info = np.zeros(4)
-        nz = self._zmap.shape[0]
-        self._H = np.zeros((nz, nz))
-        self.k = 0
-        self.time = 0.0
-        self._q = np.empty((N, 4))
-        self._x = np.empty((N, 3))
-        self._xm1 = np.empty((N, 3))
-        self._zp = np.zeros(6 * N)
-        self._zpm1 = np.zeros(6 * N)
-        self._ready = False
-
-    @property
-    def dim(self) -> int:
-        return self.phys.dim
-
-    def reset(self, u: Array, t0: float = 0.0) -> None:
-        """Start from state ``u`` (planar ``phi`` or 3D flat ``U``) at time ``t0``."""
-        u = np.asarray(u, dtype=float)
-        if u.shape != (self.dim,):
-            raise ValueError(
-                f"BDF2Stepper.reset: state has shape {u.shape}, "
-                f"expected ({self.dim},) for this scene"
-            )
-        if not np.all(np.isfinite(u)):
-            bad = np.flatnonzero(~np.isfinite(u))
-            raise NonFiniteError(
-                f"BDF2Stepper.reset: initial state has non-finite entries "
-                f"at indices {bad[:10].tolist()}"
-            )
-        U = embed_planar(u) if self.phys.planar else u
-        self._q[:] = frames_from_state(U)
-        self._x[:] = positions(tangents(self._q), self.phys.dL)
-        self._xm1[:] = self._x
-        self._zp[:] = self._consistent_start()
-        self._zpm1[:] = self._zp
-        self.k = 0
-        self.time = float(t0)
-        self._info[:] = 0.0
-        self.rescued = []
-        self._ready = True
-
-    def _consistent_start(self) -> Array:
-        """Predictor of the first step: zero increments, consistent loads.
-
-        The loads are the Lagrange multipliers of the continuous problem at
-        the initial frames (the same constraint solve as the model's
-        ``rhs``). Starting from zero loads diverges for strong actuation;
-        starting the increments at ``dt Omega`` (explicit Euler) overshoots
-        the stiff modes by ``dt |lambda_max| >> 1`` and is worse than zero.
-        """
-        ph = self.phys
-        N = ph.N
-        q = self._q
-        t = tangents(q)
-        X = self._x
-        if ph.hydro == "rpy":
-            Mob = _rpy.rpy_mobility(X, ph.a, ph.eta)
-        else:
-            Mob = _rpy.local_mobility(N, ph.a, ph.eta)
-        FA = _forces.follower_forces(t, ph.wff, ph.f)
-        if ph.B1 != 0.0:
-            Vsf = _sq.squirmer_velocity(X, t, ph.wsf, ph.a, ph.B1, ph.eta)
-        else:
-            Vsf = np.zeros((N, 3))
-        TE = _elastic.elastic_torques(q, ph.dL, ph.KB, ph.KT)
-        lam, _ = _kc.solve_constraints(t, Mob, FA, TE, Vsf, ph.dL)
-        z = np.zeros(6 * N)
-        z[3 * (N - 1) :] = lam
-        if not np.all(np.isfinite(z)):
-            raise NonFiniteError("BDF2Stepper.reset: non-finite loads at the initial state")
-        # planar runs: keep only the in-plane unknowns (the rest vanish anyway)
-        zr = np.zeros(6 * N)
-        zr[self._zmap] = z[self._zmap]
-        return zr
-
-    @property
-    def state(self) -> Array:
-        """Current model state (planar ``phi`` or 3D ``U``)."""
-        U = state_from_frames(self._q)
-        return project_planar(U) if self.phys.planar else U
-
-    @property
-    def frames(self) -> Array:
-        """Current quaternions (N, 4)."""
-        return self._q.copy()
-
-    @property
-    def positions(self) -> Array:
-        """Current segment centres (N, 3)."""
-        return self._x.copy()
-
-    @property
-    def loads(self) -> tuple[Array, Array, Array]:
-        """(Lam (N-1, 3), Fc, Tc) of the last step (zeros before the first)."""
-        N = self.phys.N
-        zp = self._zp
-        return (
-            zp[3 * (N - 1) : 6 * (N - 1)].reshape(N - 1, 3).copy(),
-            zp[6 * (N - 1) : 6 * N - 3].copy(),
-            zp[6 * N - 3 :].copy(),
-        )
-
-    def _kernel(
-        self,
-        n: int,
-        k0: int,
-        dt: float,
-        state: tuple[Array, ...],
-        rec_every: int,
-        rec_offset: int,
-        rec_q: Array,
-        diag: Array,
-        info: Array,
-    ) -> int:
-        q, x, xm1, zp, zpm1, H = state
-        return int(
-            _k.advance(
-                n,
-                k0,
-                dt,
-                q,
-                x,
-                xm1,
-                zp,
-                zpm1,
-                H,
-                self._physarr,
-                self.phys.wff,
-                self.phys.wsf,
-                self._opts,
-                self._zmap,
-                self._rmap,
-                self.tol,
-                rec_every,
-                rec_offset,
-                rec_q,
-                diag,
-                info,
-            )
-        )
-
-    def _rescue(self) -> Array | None:
-        """Redo the failed step ``k -> k+1`` as ``2^m`` sub-steps (m = 1..max_halvings).
-
-        The sub-steps are a BDF2 run of step ``dt/2^m`` started by backward
-        Euler, from the last accepted state; afterwards the BDF2 history is
-        rebuilt at spacing ``dt`` (positions at k and k+1, increments
-        ``log(q^{k+1} q^{k*})``), so the next steps are ordinary BDF2 steps.
-        Returns the diagnostic row of the rescued step, or None if all failed.
-        """
-        N = self.phys.N
-        for m in range(1, self.max_halvings + 1):
-            nsub = 2**m
-            q = self._q.copy()
-            x = self._x.copy()
-            zp = self._zp.copy()
-            zp[: 3 * (N - 1)] = 0.0  # loads of step k as the predictor, no motion
-            sub = (q, x, x.copy(), zp, zp.copy(), np.zeros_like(self._H))
-            d = np.zeros((nsub, _k.N_DIAG))
-            info = np.zeros(4)
-            done = self._kernel(nsub, 0, self.dt / nsub, sub, 0, 0, np.empty((1, N, 4)), d, info)
-            if done < nsub:
-                continue
-            incr = np.zeros(6 * N)
-            incr[: 3 * (N - 1)] = _relative_rotvec(q[1:], self._q[1:]).ravel()
-            incr[3 * (N - 1) :] = zp[3 * (N - 1) :]
-            self._zpm1[:] = self._zp
-            self._zp[:] = 0.0
-            self._zp[self._zmap] = incr[self._zmap]
-            self._xm1[:] = self._x
-            self._x[:] = x
-            self._q[:] = q
-            self._info[3] = 0.0  # no carried-over inverse Jacobian
-            return np.array(
-                [d[:, 0].sum(), d[:, 1].max(), d[:, 2].max(), d[:, 3].max(), d[:, 4].sum()]
-            )
-        return None
-
-    def _advance(self, n: int, rec_every: int = 0) -> tuple[StepDiagnostics, Array]:
-        if not self._ready:
-            raise RuntimeError("BDF2Stepper: call reset(u) before stepping")
-        N = self.phys.N
-        nrec = n // rec_every if rec_every > 0 else 0
-        rec_q = np.empty((max(nrec, 1), N, 4))
-        diag = np.zeros((max(n, 1), _k.N_DIAG))
-        state = (self._q, self._x, self._xm1, self._zp, self._zpm1, self._H)
-        i0 = 0
-        while i0 < n:
-            done = self._kernel(
-                n - i0, self.k, self.dt, state, rec_every, i0, rec_q, diag[i0:], self._info
-            )
-            self.k += done
-            self.time += done * self.dt
-            i0 += done
-            if i0 == n:
-                break
-            status = int(self._info[0])
-            kfail = int(self._info[1])
-            res = float(self._info[2])
-            row = self._rescue() if self.max_halvings > 0 else None
-            if row is not None:
-                self.rescued.append(kfail)
-                diag[i0] = row
-                self.k += 1
-                self.time += self.dt
-                i0 += 1
-                if rec_every > 0 and i0 % rec_every == 0:
-                    rec_q[i0 // rec_every - 1] = self._q
-                continue
-            msg = (
-                f"BDF2 step {kfail} (t = {kfail * self.dt:.6g} -> "
-                f"{(kfail + 1) * self.dt:.6g}, dt = {self.dt:.3g}): Broyden "
-                f"{_br.STATUS_NAMES.get(status, status)}, scaled residual |R|_inf = "
-                f"{res:.3e} (tol {self.tol:.1e})"
-                + (
-                    f"; also failed as 2..{2**self.max_halvings} sub-steps"
-                    if self.max_halvings > 0
-                    else ""
-                )
-            )
-            self._ready = False  # state is the last accepted step; force a reset
-            if status == _br.NONFINITE:
-                raise NonFiniteError(msg)
-            raise ConvergenceError(msg)
-        return StepDiagnostics.from_diag(diag[:n]), rec_q[:nrec]
-
-    def step(self, n: int = 1) -> Array:
-        """Advance ``n`` steps and return the new state."""
-        if n < 0:
-            raise ValueError(f"BDF2Stepper.step: n must be >= 0, got {n}")
-        if n > 0:
-            self.last_diagnostics, _ = self._advance(n)
-        return self.state
 
 
 def _n_steps(T: float, steps: int | None, dt: float | None) -> int:
@@ -590,8 +122,8 @@ def flow(
 ) -> Array:
     """The flow map ``phi_T(u)`` by ``n`` equal BDF2 steps (first: backward Euler).
 
-    ``n = steps`` or ``ceil(T/dt)`` (neither given: ``n = 400``, the paper's
-    ``dt = T/400`` for a period ``T``), ``dt_eff = T/n``; with ``steps`` fixed
+    ``n = steps`` or ``ceil(T/dt)`` (neither given: ``default_steps(T)``, the
+    paper's ``dt = T/400`` for a period ``T``), ``dt_eff = T/n``; with ``steps`` fixed
     the result is a smooth function of ``u`` and ``T`` (up to the Broyden
     tolerance), as finite-difference shooting and Floquet analysis need.
     ``u`` is the model's state (3D ``U``, or planar ``phi``); ``stepper_kw``
@@ -603,7 +135,7 @@ def flow(
     the result is still a smooth function of ``u`` and ``T``.
     """
     if steps is None and dt is None:
-        steps = DEFAULT_FLOW_STEPS
+        steps = default_steps(T)
     n = _n_steps(T, steps, dt)
     u = np.asarray(u, dtype=float)
     if not np.all(np.isfinite(u)):
@@ -639,19 +171,14 @@ class Trajectory:
         return float(np.max(self.diagnostics.kinematic, initial=0.0))
 
 
-def _frame_observables(q: Array, dL: float, KB: float) -> dict[str, Any]:
-    t = tangents(q)
-    X = positions(t, dL)
-    tip = X[-1] + 0.5 * dL * t[-1]
-    # bending energy from the angles between neighbouring tangents
-    c = np.clip(np.einsum("ij,ij->i", t[1:], t[:-1]), -1.0, 1.0)
-    ang = np.arccos(c)
-    return {
-        "tip": tip,
-        "tip_angle": float(np.arctan2(tip[1], tip[0])),
-        "tip_height": float(tip[2]),
-        "bending_energy": float(0.5 * KB * np.sum(ang**2) / dL),
-    }
+
+def trajectory_observables(phys: FilamentPhysics, q: Array, u: Array) -> dict[str, Any]:
+    """The model's observables (:func:`~contfil.models.filament.physics.frame_observables`
+    and ``norm``) of frames ``q`` and state ``u``, plus the free end ``tip`` (3,)."""
+    obs: dict[str, Any] = dict(frame_observables(tangents(q), phys.dL, phys.KB))
+    obs["norm"] = float(np.linalg.norm(u))
+    obs["tip"] = np.array([obs["tip_x"], obs["tip_y"], obs["tip_z"]])
+    return obs
 
 
 def trajectory(
@@ -672,8 +199,9 @@ def trajectory(
     is shorter when ``out_every`` does not divide the number of steps).
 
     Returns a :class:`Trajectory`: times (initial time included), states
-    (model layout), observables (``tip`` (n_out, 3), ``tip_angle`` (the
-    azimuth of the free end), ``tip_height``, ``bending_energy``) and per-step
+    (model layout), observables (the model's, :func:`trajectory_observables`:
+    ``bending_energy``, ``tip_x``/``tip_y``/``tip_z``, ``tip_r``,
+    ``tip_angle``, ``norm``, and ``tip`` (n_out, 3)) and per-step
     diagnostics: Broyden iterations, scaled residual, the robot-arm
     constraint residual ``max_n |X_{n+1} - X_n - dL/2 (t_n + t_{n+1})|``
     (round-off by construction, since positions come from frames) and the
@@ -698,8 +226,9 @@ def trajectory(
     obs: dict[str, list[Any]] = {}
     for qq in allq:
         U = state_from_frames(qq)
-        states.append(project_planar(U) if st.phys.planar else U)
-        for key, val in _frame_observables(qq, st.phys.dL, st.phys.KB).items():
+        u_model = project_planar(U) if st.phys.planar else U
+        states.append(u_model)
+        for key, val in trajectory_observables(st.phys, qq, u_model).items():
             obs.setdefault(key, []).append(val)
     return Trajectory(
         t=times,
@@ -739,10 +268,10 @@ def rotate_state_z(U: Array, theta: float) -> Array:
 
 
 def observables_of_state(scene: Scene, u: Array) -> dict[str, Any]:
-    """Tip position, tip azimuth, tip height and bending energy of a state."""
+    """The observables of a state, as :func:`trajectory` records them."""
     u = np.asarray(u, dtype=float)
     U = embed_planar(u) if scene.planar else u
-    return _frame_observables(frames_from_state(U), scene.dL, scene.KB)
+    return trajectory_observables(FilamentPhysics(scene), frames_from_state(U), u)
 
 
 __all__: Sequence[str] = (
@@ -750,6 +279,7 @@ __all__: Sequence[str] = (
     "FilamentPhysics",
     "StepDiagnostics",
     "Trajectory",
+    "default_steps",
     "attach_flow",
     "embed_planar",
     "flow",
@@ -757,4 +287,5 @@ __all__: Sequence[str] = (
     "project_planar",
     "rotate_state_z",
     "trajectory",
+    "trajectory_observables",
 )

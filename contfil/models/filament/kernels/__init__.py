@@ -24,7 +24,13 @@ Lam, Fc, Tc, TE, FA, dL) -> (F, T)``; velocities are then
 ``lam = [Lam (3(N-1)), Fc, Tc]``, ``vel = [V; Omega]`` (6N,), and
 ``rhs3d(U, q, t, Mob, FA, Vsf, dL, KB, KT) -> (dU, lam, vel)``; planar
 analogues ``planar_configuration``, ``solve_constraints_planar``,
-``rhs_planar``. Units: L = 1, K_B = 1, eta = 1.
+``rhs_planar``. ``effects``: the physics layout ``par``/``flags`` (built by
+``physics.FilamentPhysics``) and its compiled dispatch ``active_force``,
+``add_surface_flow``, ``apply_mobility`` (``rpy.rpy_apply``/``local_apply``,
+matrix-free). ``bdf2_residual``, ``bdf2_jacobian``, ``bdf2_step``: the BDF2
+step (residual, approximate Jacobian, Broyden loop and stepping).
+``quaternion.dexp_matrix(u, inverse)``: the 3x3 matrix of ``dexp``/``dexp_inv``.
+Units: L = 1, K_B = 1, eta = 1.
 """
 
 from .elastic import elastic_moments, elastic_torques

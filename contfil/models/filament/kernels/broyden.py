@@ -34,7 +34,7 @@ from contfil.errors import ConvergenceError, NonFiniteError
 
 Array = NDArray[np.float64]
 
-# Status codes shared with the numba loop in kernels/bdf2_solver.py.
+# Status codes shared with the numba loop in kernels/bdf2_step.py.
 OK = 0
 MAXITER = 1
 STALL = 2

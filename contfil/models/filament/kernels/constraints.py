@@ -96,6 +96,40 @@ def _apply_BT(t: np.ndarray, vel: np.ndarray, dL: float, out: np.ndarray, n0: in
 
 
 @njit(cache=True)
+def _solve_multipliers(
+    t: np.ndarray, MBt: np.ndarray, w0: np.ndarray, dL: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(B^T M B) lam = -B^T w0`` by Cholesky, and ``vel = w0 + (M B) lam``.
+
+    Shared by the 3D and the planar solve: ``t`` is (N, 3) or (N, 2), which
+    picks ``B^T`` (3 or 2 force components per joint).
+    """
+    N, d = t.shape
+    nc = MBt.shape[0]
+    K = np.empty((nc, nc))
+    col = np.empty(nc)
+    rhs = np.empty(nc)
+    for c in range(nc):
+        # lower triangle only (rows >= c), which is all _chol_solve reads
+        n0 = min(c // d, N - 1)
+        if d == 3:
+            _apply_BT(t, MBt[c], dL, col, n0)
+        else:
+            _apply_BT_planar(t, MBt[c], dL, col, n0)
+        for r in range(d * n0, nc):
+            K[r, c] = col[r]
+    if d == 3:
+        _apply_BT(t, w0, dL, rhs)
+    else:
+        _apply_BT_planar(t, w0, dL, rhs)
+    for r in range(nc):
+        rhs[r] = -rhs[r]
+    lam = _chol_solve(K, rhs)
+    vel = w0 + lam @ MBt
+    return lam, vel
+
+
+@njit(cache=True)
 def solve_constraints(
     t: np.ndarray, Mob: np.ndarray, F0: np.ndarray, T0: np.ndarray, Vsf: np.ndarray, dL: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -150,21 +184,7 @@ def solve_constraints(
         for r in range(6 * N):
             MBt[c0 + j, r] = Mob[j, r]
             MBt[c0 + 3 + j, r] = Mob[R + j, r]
-    K = np.empty((nc, nc))
-    col = np.empty(nc)
-    for c in range(nc):
-        # lower triangle only (rows >= c), which is all _chol_solve reads
-        n0 = min(c // 3, N - 1)
-        _apply_BT(t, MBt[c], dL, col, n0)
-        for r in range(3 * n0, nc):
-            K[r, c] = col[r]
-    rhs = np.empty(nc)
-    _apply_BT(t, w0, dL, rhs)
-    for r in range(nc):
-        rhs[r] = -rhs[r]
-    lam = _chol_solve(K, rhs)
-    vel = w0 + lam @ MBt
-    return lam, vel
+    return _solve_multipliers(t, MBt, w0, dL)
 
 
 @njit(cache=True)
@@ -303,20 +323,7 @@ def solve_constraints_planar(
         MBt[c0, r] = Mob[0, r]
         MBt[c0 + 1, r] = Mob[1, r]
         MBt[c0 + 2, r] = Mob[R, r]
-    K = np.empty((nc, nc))
-    col = np.empty(nc)
-    for c in range(nc):
-        n0 = min(c // 2, N - 1)
-        _apply_BT_planar(t2, MBt[c], dL, col, n0)
-        for r in range(2 * n0, nc):
-            K[r, c] = col[r]
-    rhs = np.empty(nc)
-    _apply_BT_planar(t2, w0, dL, rhs)
-    for r in range(nc):
-        rhs[r] = -rhs[r]
-    lam = _chol_solve(K, rhs)
-    vel = w0 + lam @ MBt
-    return lam, vel
+    return _solve_multipliers(t2, MBt, w0, dL)
 
 
 @njit(cache=True)

@@ -171,3 +171,17 @@ def dexp_inv(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     for i in range(3):
         r[i] = v[i] - 0.5 * uv[i] + c * uuv[i]
     return r
+
+
+@njit(cache=True)
+def dexp_matrix(u: np.ndarray, inverse: bool) -> np.ndarray:
+    """Matrix of ``v -> dexp(u, v)`` (or of ``dexp_inv(u, .)`` when ``inverse``)."""
+    A = np.empty((3, 3))
+    e = np.zeros(3)
+    for k in range(3):
+        e[:] = 0.0
+        e[k] = 1.0
+        c = dexp_inv(u, e) if inverse else dexp(u, e)
+        for i in range(3):
+            A[i, k] = c[i]
+    return A

@@ -25,6 +25,12 @@ from numba import njit
 
 
 @njit(cache=True)
+def self_mobilities(a: float, eta: float) -> tuple[float, float]:
+    """(translational, rotational) self-mobility ``1/(6 pi eta a)``, ``1/(8 pi eta a^3)``."""
+    return 1.0 / (6.0 * np.pi * eta * a), 1.0 / (8.0 * np.pi * eta * a * a * a)
+
+
+@njit(cache=True)
 def _pair_coeffs(r: float, a: float, eta: float) -> tuple[float, float, float, float, float]:
     """(tt_I, tt_rr, rr_I, rr_rr, coupling) scalar coefficients at distance r."""
     pi = np.pi
@@ -50,12 +56,28 @@ def _pair_coeffs(r: float, a: float, eta: float) -> tuple[float, float, float, f
 
 
 @njit(cache=True)
+def _pair(
+    X: np.ndarray, i: int, j: int, a: float, eta: float
+) -> tuple[float, float, float, float, float, float, float, float]:
+    """Unit separation ``rh = (X_i - X_j)/r`` and the coefficients of the pair (i, j).
+
+    The one pair evaluation shared by the dense assembly and the matrix-free
+    product, so both see the same numbers to the last bit.
+    """
+    r0 = X[i, 0] - X[j, 0]
+    r1 = X[i, 1] - X[j, 1]
+    r2 = X[i, 2] - X[j, 2]
+    r = np.sqrt(r0 * r0 + r1 * r1 + r2 * r2)
+    ttI, ttR, rrI, rrR, cp = _pair_coeffs(r, a, eta)
+    return r0 / r, r1 / r, r2 / r, ttI, ttR, rrI, rrR, cp
+
+
+@njit(cache=True)
 def rpy_mobility(X: np.ndarray, a: float, eta: float) -> np.ndarray:
     """Full RPY grand mobility (6N, 6N) of spheres at ``X`` (N, 3)."""
     N = X.shape[0]
     M = np.zeros((6 * N, 6 * N))
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     R = 3 * N
     for i in range(N):
         for k in range(3):
@@ -64,14 +86,7 @@ def rpy_mobility(X: np.ndarray, a: float, eta: float) -> np.ndarray:
     rh = np.empty(3)
     for i in range(N):
         for j in range(i + 1, N):
-            r2 = 0.0
-            for k in range(3):
-                rh[k] = X[i, k] - X[j, k]
-                r2 += rh[k] * rh[k]
-            r = np.sqrt(r2)
-            for k in range(3):
-                rh[k] /= r
-            ttI, ttR, rrI, rrR, cp = _pair_coeffs(r, a, eta)
+            rh[0], rh[1], rh[2], ttI, ttR, rrI, rrR, cp = _pair(X, i, j, a, eta)
             for k in range(3):
                 for m in range(3):
                     tt = ttR * rh[k] * rh[m]
@@ -107,11 +122,79 @@ def rpy_mobility(X: np.ndarray, a: float, eta: float) -> np.ndarray:
 
 
 @njit(cache=True)
+def rpy_apply(
+    X: np.ndarray,
+    a: float,
+    eta: float,
+    F: np.ndarray,
+    T: np.ndarray,
+    V: np.ndarray,
+    Om: np.ndarray,
+) -> None:
+    """``[V; Om] = M_RPY(X) [F; T]`` without forming the ``6N x 6N`` matrix.
+
+    The time stepper's residual calls this in every Broyden iteration, where
+    assembling the dense matrix cost more than the rest of the residual.
+    """
+    N = X.shape[0]
+    mt, mr = self_mobilities(a, eta)
+    for n in range(N):
+        for k in range(3):
+            V[n, k] = mt * F[n, k]
+            Om[n, k] = mr * T[n, k]
+    for i in range(N):
+        for j in range(i + 1, N):
+            h0, h1, h2, ttI, ttR, rrI, rrR, cp = _pair(X, i, j, a, eta)
+            hFj = h0 * F[j, 0] + h1 * F[j, 1] + h2 * F[j, 2]
+            hFi = h0 * F[i, 0] + h1 * F[i, 1] + h2 * F[i, 2]
+            hTj = h0 * T[j, 0] + h1 * T[j, 1] + h2 * T[j, 2]
+            hTi = h0 * T[i, 0] + h1 * T[i, 1] + h2 * T[i, 2]
+            # translation-translation and rotation-rotation (symmetric pairs)
+            V[i, 0] += ttI * F[j, 0] + ttR * h0 * hFj
+            V[i, 1] += ttI * F[j, 1] + ttR * h1 * hFj
+            V[i, 2] += ttI * F[j, 2] + ttR * h2 * hFj
+            V[j, 0] += ttI * F[i, 0] + ttR * h0 * hFi
+            V[j, 1] += ttI * F[i, 1] + ttR * h1 * hFi
+            V[j, 2] += ttI * F[i, 2] + ttR * h2 * hFi
+            Om[i, 0] += rrI * T[j, 0] + rrR * h0 * hTj
+            Om[i, 1] += rrI * T[j, 1] + rrR * h1 * hTj
+            Om[i, 2] += rrI * T[j, 2] + rrR * h2 * hTj
+            Om[j, 0] += rrI * T[i, 0] + rrR * h0 * hTi
+            Om[j, 1] += rrI * T[i, 1] + rrR * h1 * hTi
+            Om[j, 2] += rrI * T[i, 2] + rrR * h2 * hTi
+            # coupling: V_i += cp T_j x rh, Om_i += cp F_j x rh; (j, i): rh -> -rh
+            V[i, 0] += cp * (T[j, 1] * h2 - T[j, 2] * h1)
+            V[i, 1] += cp * (T[j, 2] * h0 - T[j, 0] * h2)
+            V[i, 2] += cp * (T[j, 0] * h1 - T[j, 1] * h0)
+            Om[i, 0] += cp * (F[j, 1] * h2 - F[j, 2] * h1)
+            Om[i, 1] += cp * (F[j, 2] * h0 - F[j, 0] * h2)
+            Om[i, 2] += cp * (F[j, 0] * h1 - F[j, 1] * h0)
+            V[j, 0] -= cp * (T[i, 1] * h2 - T[i, 2] * h1)
+            V[j, 1] -= cp * (T[i, 2] * h0 - T[i, 0] * h2)
+            V[j, 2] -= cp * (T[i, 0] * h1 - T[i, 1] * h0)
+            Om[j, 0] -= cp * (F[i, 1] * h2 - F[i, 2] * h1)
+            Om[j, 1] -= cp * (F[i, 2] * h0 - F[i, 0] * h2)
+            Om[j, 2] -= cp * (F[i, 0] * h1 - F[i, 1] * h0)
+
+
+@njit(cache=True)
+def local_apply(
+    a: float, eta: float, F: np.ndarray, T: np.ndarray, V: np.ndarray, Om: np.ndarray
+) -> None:
+    """``[V; Om] = M_local [F; T]``: self-mobilities only."""
+    N = F.shape[0]
+    mt, mr = self_mobilities(a, eta)
+    for n in range(N):
+        for k in range(3):
+            V[n, k] = mt * F[n, k]
+            Om[n, k] = mr * T[n, k]
+
+
+@njit(cache=True)
 def local_mobility(N: int, a: float, eta: float) -> np.ndarray:
     """Self-only (local drag) mobility (6N, 6N): diagonal, no interactions."""
     M = np.zeros((6 * N, 6 * N))
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     for i in range(3 * N):
         M[i, i] = mt
         M[3 * N + i, 3 * N + i] = mr
@@ -123,8 +206,7 @@ def rpy_mobility_planar(X2: np.ndarray, a: float, eta: float) -> np.ndarray:
     """RPY mobility restricted to in-plane motion (3N, 3N); ``X2`` is (N, 2) [x, z]."""
     N = X2.shape[0]
     M = np.zeros((3 * N, 3 * N))
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     R = 2 * N
     for i in range(N):
         M[2 * i, 2 * i] = mt
@@ -170,8 +252,7 @@ def rpy_mobility_planar(X2: np.ndarray, a: float, eta: float) -> np.ndarray:
 def local_mobility_planar(N: int, a: float, eta: float) -> np.ndarray:
     """Self-only planar mobility (3N, 3N)."""
     M = np.zeros((3 * N, 3 * N))
-    mt = 1.0 / (6.0 * np.pi * eta * a)
-    mr = 1.0 / (8.0 * np.pi * eta * a * a * a)
+    mt, mr = self_mobilities(a, eta)
     for i in range(2 * N):
         M[i, i] = mt
     for i in range(N):
