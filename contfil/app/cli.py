@@ -263,40 +263,46 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``contfil`` console script; returns the exit status."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     args = _parser().parse_args(argv)
-    from contfil.explore.stop import stop_on_signals
+    from contfil.explore.stop import Interrupted, stop_on_signals
 
-    with stop_on_signals() as stop:
-        if _EARLY_SIGNALS:
-            print("contfil: interrupted", file=sys.stderr)
-            return 128 + _EARLY_SIGNALS[0]
-        try:
-            return COMMANDS[args.command](args)
-        except BaseException as exc:  # noqa: BLE001 - every path ends in one line
-            status = _interrupt_status(exc, stop)
-            if status is not None:
-                hint = " (resume with --resume)" if args.command == "run" else ""
-                print(f"contfil: interrupted{hint}", file=sys.stderr)
-                return status
-            if isinstance(exc, ContfilError):
-                print(f"contfil: error: {_one_line(exc)}", file=sys.stderr)
-                return 2
-            if isinstance(exc, OSError):
-                # Disk full, permissions, ...: not a bad spec, but still one clear line.
-                print(f"contfil: error: {_one_line(exc)}", file=sys.stderr)
-                return 1
-            if isinstance(exc, MemoryError):
-                print("contfil: error: out of memory (the problem is too large for this "
-                      "machine; reduce its size)", file=sys.stderr)
-                return 1
-            if isinstance(exc, SystemExit | GeneratorExit) or not isinstance(exc, Exception):
-                raise
-            if os.environ.get("CONTFIL_DEBUG"):
-                raise
-            # A bug: still one line for the user; CONTFIL_DEBUG=1 shows the traceback.
-            print(f"contfil: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
-                  "(a bug: please report it; CONTFIL_DEBUG=1 shows the traceback)",
-                  file=sys.stderr)
-            return 1
+    hint = " (resume with --resume)" if args.command == "run" else ""
+    try:
+        with stop_on_signals() as stop:
+            if _EARLY_SIGNALS:
+                raise Interrupted(_EARLY_SIGNALS[0])
+            try:
+                return COMMANDS[args.command](args)
+            except BaseException as exc:  # noqa: BLE001 - every path ends in one line
+                status = _interrupt_status(exc, stop)
+                if status is not None:
+                    print(f"contfil: interrupted{hint}", file=sys.stderr)
+                    return status
+                return _report(exc)
+    except Interrupted as exc:
+        # A signal that arrived while leaving (handlers are restored last).
+        print(f"contfil: interrupted{hint}", file=sys.stderr)
+        return exc.exit_status
+
+
+def _report(exc: BaseException) -> int:
+    """Print one line for ``exc`` and return the exit status (or re-raise)."""
+    if isinstance(exc, ContfilError):
+        print(f"contfil: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    if isinstance(exc, OSError):
+        # Disk full, permissions, ...: not a bad spec, but still one clear line.
+        print(f"contfil: error: {_one_line(exc)}", file=sys.stderr)
+        return 1
+    if isinstance(exc, MemoryError):
+        print("contfil: error: out of memory (the problem is too large for this "
+              "machine; reduce its size)", file=sys.stderr)
+        return 1
+    if not isinstance(exc, Exception) or os.environ.get("CONTFIL_DEBUG"):
+        raise exc
+    # A bug: still one line for the user; CONTFIL_DEBUG=1 shows the traceback.
+    print(f"contfil: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
+          "(a bug: please report it; CONTFIL_DEBUG=1 shows the traceback)", file=sys.stderr)
+    return 1
 
 
 def _one_line(exc: BaseException) -> str:
