@@ -123,14 +123,19 @@ class ExplorerSettings:
     branch_kinds: tuple[str, ...] | None = None
 
 
+def _on(p: float, bound: float) -> bool:
+    """``p`` is the bound, up to the round-off of a solve at fixed ``p``."""
+    return bool(np.isfinite(bound)) and abs(p - bound) <= 1e-12 * (1.0 + abs(bound))
+
+
 class StopPolicy:
     """When a segment ends (besides the continuer's own end and failures).
 
     ``after(points, ...)`` is called after every accepted point *and* on
     resume, so a run killed between storing a last point and its end record
-    ends the same way: outside ``p_range``, at ``max_points``, or as a
-    duplicate of a known branch (tested once, at exactly ``dedup_after``
-    points, the same on resume).
+    ends the same way: outside ``p_range``, on a bound of it (where the
+    engine stops), at ``max_points``, or as a duplicate of a known branch
+    (tested once, at exactly ``dedup_after`` points, the same on resume).
     """
 
     def __init__(self, settings: ExplorerSettings, graph: BranchGraph) -> None:
@@ -145,8 +150,19 @@ class StopPolicy:
         if not points:
             return None
         lo, hi = s.p_range
-        if not lo <= points[-1].p <= hi:
+        p = points[-1].p
+        if not lo <= p <= hi:
             return StopReason("range")
+        if len(points) >= 2:
+            # The engine lands the step that leaves the range exactly on the
+            # bound and stops there: a segment whose last point is on a bound,
+            # reached from inside, has ended (a resume from that point would
+            # land on the bound again and store it twice).
+            prev = points[-2].p
+            if _on(p, hi) and prev < hi and not _on(prev, hi):
+                return StopReason("p_max")
+            if _on(p, lo) and prev > lo and not _on(prev, lo):
+                return StopReason("p_min")
         if len(points) >= s.max_points:
             return StopReason("max_points")
         if check_dup and is_switched and len(points) >= s.dedup_after:
