@@ -29,7 +29,7 @@ any iterator of :class:`Step`.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -49,8 +49,15 @@ from contfil.explore.observers import (
     SwitchDone,
     Switching,
 )
-from contfil.explore.seeds import Seed, SwitcherRegistry
-from contfil.explore.stop import SEGMENT_FAILURES, STOP, StopReason, StopRequest
+from contfil.explore.seeds import (
+    PendingProblem,
+    Seed,
+    SwitcherRegistry,
+    check_seed,
+    join_segments,
+    seed_record,
+)
+from contfil.explore.stop import SEGMENT_FAILURES, STOP, StopPolicy, StopReason, StopRequest
 from contfil.graph.branch_graph import BranchGraph
 from contfil.graph.identity import IdentityTolerance
 from contfil.store.run_store import RunStore, TaskRecords, task_name
@@ -121,62 +128,6 @@ class ExplorerSettings:
     max_points: int = 200
     dedup_after: int = 6
     branch_kinds: tuple[str, ...] | None = None
-
-
-def _on(p: float, bound: float) -> bool:
-    """``p`` is the bound, up to the round-off of a solve at fixed ``p``."""
-    return bool(np.isfinite(bound)) and abs(p - bound) <= 1e-12 * (1.0 + abs(bound))
-
-
-class StopPolicy:
-    """When a segment ends (besides the continuer's own end and failures).
-
-    ``after(points, ...)`` is called after every accepted point *and* on
-    resume, so a run killed between storing a last point and its end record
-    ends the same way: outside ``p_range``, on a bound of it (where the
-    engine stops), at ``max_points``, or as a duplicate of a known branch
-    (tested once, at exactly ``dedup_after`` points, the same on resume).
-    """
-
-    def __init__(self, settings: ExplorerSettings, graph: BranchGraph) -> None:
-        self.settings = settings
-        self.graph = graph
-        self._dedup_done: set[int] = set()
-
-    def after(self, points: list[Point], kind: str, param: str, task_id: int,
-              is_switched: bool, check_dup: bool) -> StopReason | None:
-        """Why the segment must end after ``points`` (``None``: go on)."""
-        s = self.settings
-        if not points:
-            return None
-        lo, hi = s.p_range
-        p = points[-1].p
-        if not lo <= p <= hi:
-            return StopReason("range")
-        if len(points) >= 2:
-            # The engine lands the step that leaves the range exactly on the
-            # bound and stops there: a segment whose last point is on a bound,
-            # reached from inside, has ended (a resume from that point would
-            # land on the bound again and store it twice).
-            prev = points[-2].p
-            if _on(p, hi) and prev < hi and not _on(prev, hi):
-                return StopReason("p_max")
-            if _on(p, lo) and prev > lo and not _on(prev, lo):
-                return StopReason("p_min")
-        if len(points) >= s.max_points:
-            return StopReason("max_points")
-        if check_dup and is_switched and len(points) >= s.dedup_after:
-            if len(points) == s.dedup_after or task_id not in self._dedup_done:
-                self._dedup_done.add(task_id)
-                partial = Branch(kind=kind, param=param, points=list(points[: s.dedup_after]))
-                found = self.graph.find_branch(partial)
-                if found is not None:
-                    return StopReason("duplicate", found)
-        return None
-
-    def more_tasks(self, n_started: int) -> bool:
-        """Whether another continuation task may start."""
-        return n_started < self.settings.max_branches
 
 
 @dataclass
@@ -313,7 +264,7 @@ class Explorer:
                 label: str) -> list[Seed]:
         """Seeds leaving ``sp``; recorded in the store, so that a resumed run
         does not redo a (possibly costly) switch unless it needs the new
-        problems themselves (see :class:`_PendingProblem`)."""
+        problems themselves (see :class:`PendingProblem`)."""
         rec = self.history.load_switch(key) if self.history else None
         if rec is not None:
             sp.data.update(decode(rec.get("sp_data", {})))
@@ -323,7 +274,7 @@ class Explorer:
         # A switch cut short by an interrupt may have returned nothing: not a result.
         self.stop.check()
         self.observers.notify(SwitchDone(key, {
-            "seeds": [_seed_record(sd) for sd in seeds],
+            "seeds": [seed_record(sd) for sd in seeds],
             "sp_data": encode({k: sp.data[k] for k in ("not_followed", "switch_error")
                                if k in sp.data}),
         }))
@@ -356,7 +307,7 @@ class Explorer:
             return seeds[i].problem
 
         return Seed(
-            problem=_PendingProblem(d["kind"], d["param"], int(d["n"]), resolve),
+            problem=PendingProblem(d["kind"], d["param"], int(d["n"]), resolve),
             x0=np.asarray(d["x0"], dtype=float), p0=float(d["p0"]),
             direction=int(d["direction"]),
             tangent=None if d["tangent"] is None else np.asarray(d["tangent"], dtype=float),
@@ -364,7 +315,7 @@ class Explorer:
 
     def _problem(self, seed: Seed) -> Any:
         """The seed's problem, computing a pending one now (see :meth:`_switch`)."""
-        if isinstance(seed.problem, _PendingProblem):
+        if isinstance(seed.problem, PendingProblem):
             seed.problem = seed.problem.resolve()
         return seed.problem
 
@@ -385,7 +336,7 @@ class Explorer:
             if reason.duplicate_of is not None:
                 dup = reason.duplicate_of
                 break
-        branch = _join(seed, segments, self._param_name(seed))
+        branch = join_segments(seed, segments, self._param_name(seed))
         return branch, dup
 
     def _param_name(self, seed: Seed) -> str:
@@ -401,7 +352,7 @@ class Explorer:
         specials: list[SpecialPoint] = []
         recs = self.history.read_task(k, direction) if self.history else None
         if recs is not None and recs.header is not None:
-            _check_seed(name, recs.header, seed, direction)
+            check_seed(name, recs.header, seed, direction)
             points, specials = list(recs.points), list(recs.specials)
             if recs.finished:
                 return points, specials, StopReason.parse(str(recs.end))
@@ -450,78 +401,3 @@ class Explorer:
         self.stop.check()
         emit(SegmentEnded(k, direction, reason, len(points)))
         return points, specials, reason
-
-
-class _PendingProblem:
-    """Stands for the problem of a seed read back from a switch record.
-
-    Carries what the explorer reads without solving anything (``kind``,
-    ``param``, ``n``); :meth:`resolve` recomputes the switch when the problem
-    itself is needed (to continue an unfinished branch or switch further).
-    """
-
-    def __init__(self, kind: str, param: str, n: int, resolver: Callable[[], Any]) -> None:
-        self.kind = kind
-        self.param = param
-        self.n = n
-        self._resolver = resolver
-
-    def resolve(self) -> Any:
-        return self._resolver()
-
-
-def _seed_record(sd: Seed) -> dict[str, Any]:
-    return {
-        "kind": sd.kind,
-        "param": str(getattr(sd.problem, "param", "p")),
-        "n": int(getattr(sd.problem, "n", np.asarray(sd.x0).size)),
-        "x0": np.asarray(sd.x0, dtype=float).tolist(),
-        "p0": float(sd.p0),
-        "direction": int(sd.direction),
-        "tangent": None if sd.tangent is None else np.asarray(sd.tangent, float).tolist(),
-        "both_directions": sd.both_directions,
-        "label": sd.label,
-        "info": encode(sd.info),
-    }
-
-
-def _check_seed(name: str, header: dict[str, Any], seed: Seed, direction: int) -> None:
-    old = header.get("seed", {})
-    new = seed.fingerprint()
-    same = old.get("kind") == new["kind"] and header.get("direction") == direction
-    for key in ("p0", "x0_norm", "x0_sum"):
-        a, b = float(old.get(key, np.nan)), new[key]
-        same = same and abs(a - b) <= 1e-9 * (1.0 + abs(a))
-    if not same:
-        raise ContfilError(
-            f"resume: task {name} was started from a different seed ({old}) than now ({new}); "
-            "the model or code changed since the run was started"
-        )
-
-
-def _join(seed: Seed, segments: list[tuple[list[Point], list[SpecialPoint], StopReason]],
-          param: str) -> Branch:
-    """One branch from the segments of a seed (second one reversed in front)."""
-    kind = seed.kind
-    first_pts, first_sps, first_reason = segments[0]
-    meta: dict[str, Any] = {"end_reason": first_reason.text(), "seed": seed.label or "root"}
-    if len(segments) == 1:
-        return Branch(kind=kind, param=param, points=list(first_pts),
-                      special_points=list(first_sps), meta=meta)
-    back_pts, back_sps, back_reason = segments[1]
-    # Both segments start at the corrected seed: drop one copy.
-    shared = bool(back_pts and first_pts and
-                  np.allclose(back_pts[0].u, first_pts[0].u, atol=1e-10, rtol=1e-8)
-                  and abs(back_pts[0].p - first_pts[0].p) <= 1e-12 * (1 + abs(first_pts[0].p)))
-    rev = list(reversed(back_pts))
-    nb = len(rev)
-    points = rev + (first_pts[1:] if shared else first_pts)
-    offset = nb - 1 if shared else nb
-    sps = []
-    for sp in back_sps:
-        sps.append(SpecialPoint(sp.kind, sp.point, max(0, nb - 2 - sp.index), sp.data))
-    for sp in first_sps:
-        sps.append(SpecialPoint(sp.kind, sp.point, sp.index + offset, sp.data))
-    sps.sort(key=lambda s: s.index)
-    meta["end_reason"] = f"{back_reason.text()} | {first_reason.text()}"
-    return Branch(kind=kind, param=param, points=points, special_points=sps, meta=meta)

@@ -1,5 +1,8 @@
 """When the explorer stops: one policy for segments, typed reasons, interrupts.
 
+- :class:`StopPolicy` decides when a segment ends besides the continuer's
+  own end and failures (range, its bounds, ``max_points``, duplicates) and
+  whether another task may start (``max_branches``).
 - :class:`StopReason` is why a segment ended (``range``, ``max_points``,
   ``duplicate`` of a known branch, the continuer's own end, a numerical
   ``error``); it is stored in the task log as text (:meth:`StopReason.text`)
@@ -23,9 +26,11 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from types import FrameType
+from typing import Any
 
 import numpy as np
 
+from contfil.engine.branch import Branch, Point
 from contfil.errors import ConvergenceError, DomainError, NonFiniteError
 
 #: Exceptions that end one segment of a branch, not the study: the solver
@@ -72,6 +77,64 @@ class StopReason:
     def failure(cls, exc: BaseException) -> StopReason:
         """The reason for a segment ended by one of :data:`SEGMENT_FAILURES`."""
         return cls("error", f"{type(exc).__name__}: {' '.join(str(exc).split())[:300]}")
+
+
+def _on(p: float, bound: float) -> bool:
+    """``p`` is the bound, up to the round-off of a solve at fixed ``p``."""
+    return bool(np.isfinite(bound)) and abs(p - bound) <= 1e-12 * (1.0 + abs(bound))
+
+
+class StopPolicy:
+    """When a segment ends (besides the continuer's own end and failures).
+
+    ``after(points, ...)`` is called after every accepted point *and* on
+    resume, so a run killed between storing a last point and its end record
+    ends the same way: outside ``p_range``, on a bound of it (where the
+    engine stops), at ``max_points``, or as a duplicate of a known branch
+    (tested once, at exactly ``dedup_after`` points, the same on resume).
+    """
+
+    def __init__(self, settings: Any, graph: Any) -> None:
+        # settings: an ExplorerSettings (p_range, max_points, dedup_after,
+        # max_branches); graph: the BranchGraph searched for duplicates.
+        self.settings = settings
+        self.graph = graph
+        self._dedup_done: set[int] = set()
+
+    def after(self, points: list[Point], kind: str, param: str, task_id: int,
+              is_switched: bool, check_dup: bool) -> StopReason | None:
+        """Why the segment must end after ``points`` (``None``: go on)."""
+        s = self.settings
+        if not points:
+            return None
+        lo, hi = s.p_range
+        p = points[-1].p
+        if not lo <= p <= hi:
+            return StopReason("range")
+        if len(points) >= 2:
+            # The engine lands the step that leaves the range exactly on the
+            # bound and stops there: a segment whose last point is on a bound,
+            # reached from inside, has ended (a resume from that point would
+            # land on the bound again and store it twice).
+            prev = points[-2].p
+            if _on(p, hi) and prev < hi and not _on(prev, hi):
+                return StopReason("p_max")
+            if _on(p, lo) and prev > lo and not _on(prev, lo):
+                return StopReason("p_min")
+        if len(points) >= s.max_points:
+            return StopReason("max_points")
+        if check_dup and is_switched and len(points) >= s.dedup_after:
+            if len(points) == s.dedup_after or task_id not in self._dedup_done:
+                self._dedup_done.add(task_id)
+                partial = Branch(kind=kind, param=param, points=list(points[: s.dedup_after]))
+                found = self.graph.find_branch(partial)
+                if found is not None:
+                    return StopReason("duplicate", found)
+        return None
+
+    def more_tasks(self, n_started: int) -> bool:
+        """Whether another continuation task may start."""
+        return n_started < self.settings.max_branches
 
 
 class Interrupted(KeyboardInterrupt):
