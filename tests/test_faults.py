@@ -73,27 +73,29 @@ def _same_graph(a: BranchGraph, b: BranchGraph, tol: float = 1e-12) -> None:
 
 
 # ------------------------------------------------------------------ D1
-@pytest.mark.parametrize("fault", [
-    "call:tempfile:mkdtemp:1",                              # nothing made yet
-    "call:contfil.store.run_store:atomic_write_text:1",     # spec.toml of the new dir
-    "call:contfil.store.run_store:atomic_write_json:1",     # its run.json
-    "call:contfil.store.run_store:fsync_dir:1",             # just after the rename
-    "call:contfil.store.run_store:atomic_write_json:2",     # first manifest update
+@pytest.mark.parametrize(("fault", "leaves"), [
+    ("call:tempfile:mkdtemp:1", "nothing"),                            # nothing made yet
+    ("call:contfil.store.run_store:atomic_write_text:1", "hidden"),    # spec.toml of the new dir
+    ("call:contfil.store.run_store:atomic_write_json:1", "hidden"),    # its run.json
+    ("call:contfil.store.run_store:fsync_dir:1", "run"),               # just after the rename
+    ("call:contfil.store.run_store:atomic_write_json:2", "run"),       # first manifest update
 ])
 def test_kill_in_start_up_window_leaves_a_resumable_run(finished, tmp_path: Path,
-                                                        fault: str) -> None:
+                                                        fault: str, leaves: str) -> None:
     spec, ref = finished
     run = tmp_path / "run"
     p = contfil_process(["run", str(spec), "--out", str(run), "--quiet"], fault)
     p.communicate(timeout=120)
     assert p.returncode == -signal.SIGKILL
-    # Either no run directory at all, or a complete one: never a stuck half.
+    # Either no run directory at all (at most a hidden half-made sibling), or
+    # a complete one: never a directory that neither --resume nor a fresh run takes.
+    hidden = [f.name for f in tmp_path.iterdir() if f.name.startswith(".run.")]
+    assert run.exists() == (leaves == "run") and bool(hidden) == (leaves == "hidden")
     assert not run.exists() or (run / "run.json").exists()
-    hidden = [f for f in tmp_path.iterdir() if f.name.startswith(".")]
     assert main(["run", str(spec), "--out", str(run), "--quiet", "--resume"]) == 0
     _same_graph(_graph(ref), _graph(run))
-    # The half-made directory of the killed process is cleaned up.
-    assert not [f for f in tmp_path.iterdir() if f.name.startswith(".")] or not hidden
+    # The half-made directory of the killed process is gone.
+    assert [f.name for f in tmp_path.iterdir()] == ["run"]
 
 
 # ------------------------------------------------------------------ D2

@@ -6,6 +6,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -14,6 +15,7 @@ from contfil.app.cli import main
 from contfil.app.spec import SCHEMA, TOP_KEYS, load_spec, parse_spec
 from contfil.app.study import build_model, engine_settings, require_continuation, root_seed
 from contfil.errors import ContfilError
+from contfil.graph.branch_graph import BranchGraph
 
 VALID = {
     "model": {"name": "hopf_2d"},
@@ -185,5 +187,13 @@ def test_damaged_run_resume(finished_run: Path, tmp_path_factory, capsys, ops: l
     _damage(run, ops)
     code, _ = _run_cli(["run", str(spec), "--out", str(run), "--quiet", "--resume"], capsys)
     if code == 0:
-        # A resume that succeeds leaves a finished run with a readable graph.
+        # A resume that succeeds recomputes what was lost: the uninterrupted
+        # run's graph (equilibria exactly; cycles: see the crash harness).
         assert _run_cli(["show", str(run)], capsys)[0] == 0
+        a = BranchGraph.load_json(finished_run / "graph.json")
+        b = BranchGraph.load_json(run / "graph.json")
+        assert [x.kind for x in a.branches.values()] == [x.kind for x in b.branches.values()]
+        pa, pb = a.branch("B0").points, b.branch("B0").points
+        assert len(pa) == len(pb)
+        for x, y in zip(pa, pb, strict=True):
+            assert abs(x.p - y.p) <= 1e-12 and np.max(np.abs(x.u - y.u)) <= 1e-12
