@@ -427,3 +427,62 @@ def test_filament_beating_born_unstable_at_double_hopf(tmp_path) -> None:
     for pt in beat[0].points:
         assert pt.n_unstable >= 1  # unstable at birth (and just after)
         assert abs(pt.observables["tip_y"]) < 1e-10  # planar: the x-z plane
+
+
+def test_explorer_reports_through_events_in_order() -> None:
+    """The explorer writes nothing itself: observers see every segment start,
+    every accepted point (with its special points), every end and every
+    settled task, in order; what they see adds up to the graph."""
+    from contfil.explore import observers as ob
+
+    class Recorder:
+        def __init__(self) -> None:
+            self.events: list = []
+            self.closed = False
+
+        def notify(self, event) -> None:
+            self.events.append(event)
+
+        def close(self) -> None:
+            self.closed = True
+
+    e = z2_pitchfork()
+    rec = Recorder()
+    problem = EquilibriumProblem(e.model, e.param)
+    reg = SwitcherRegistry()
+    reg.register(BRANCH_POINT, esw.branch_point_seeds)
+    settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=1.0,
+                                    newton_tol=1e-12)
+    ex = Explorer(Seed(problem, e.u0, e.p0, direction=1, label="root"), eco.engine_continuer,
+                  ExplorerSettings(depth=2, p_range=(-1.0, 1.0)), reg, settings,
+                  observers=[rec])
+    g = ex.run()
+    assert rec.closed
+    open_segments: set = set()
+    n_points = n_specials = 0
+    for ev in rec.events:
+        if isinstance(ev, ob.SegmentStarted):
+            assert ev.task not in open_segments
+            open_segments.add(ev.task)
+        elif isinstance(ev, ob.PointAccepted):
+            assert ev.task in open_segments  # points only inside a started segment
+            n_points += 1
+            n_specials += len(ev.specials)
+        elif isinstance(ev, ob.SegmentEnded):
+            open_segments.remove(ev.task)
+    assert not open_segments
+    assert n_points == ex.n_computed_points
+    done = [ev for ev in rec.events if isinstance(ev, ob.BranchDone)]
+    assert [d.k for d in done] == list(range(ex.n_tasks)) == [0, 1, 2]
+    assert [d.outcome for d in done] == ["new", "new", "duplicate"]
+    assert [d.bid for d in done] == ["B0", "B1", "B1"]
+    # The third task is the mirror half of the pitchfork: stopped as a duplicate
+    # after dedup_after points by the one stop policy.
+    ends = [ev for ev in rec.events if isinstance(ev, ob.SegmentEnded)]
+    assert ends[-1].reason.kind == "duplicate" and ends[-1].reason.duplicate_of == "B1"
+    assert ends[-1].n_points == ExplorerSettings().dedup_after
+    # Every special point of the graph was announced with the step that found it.
+    assert n_specials >= len(g.special_points) >= 1
+    switches = [ev for ev in rec.events if isinstance(ev, ob.Switching)]
+    assert [s.kind for s in switches] == ["branch_point"]
+    assert any(isinstance(ev, ob.SwitchDone) for ev in rec.events)

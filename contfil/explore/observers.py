@@ -4,7 +4,7 @@ The explorer computes; it does not write files or draw progress bars. It
 emits one event per thing that happened (:class:`SegmentStarted`,
 :class:`PointAccepted` with the special points found on the way,
 :class:`SegmentEnded`, :class:`BranchDone`, :class:`Switching`,
-:class:`Note`) to its observers, in order. Two observers ship:
+:class:`SwitchDone`, :class:`Note`) to its observers, in order. Two observers ship:
 
 - :class:`StoreObserver` writes a run directory (:mod:`contfil.store`): a
   task log per segment, the graph and the manifest after every branch;

@@ -205,3 +205,4 @@ def stop_on_signals(raise_now: bool = True) -> Iterator[StopRequest]:
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+        STOP.reset()  # a later run in this process (a notebook) starts unstopped
