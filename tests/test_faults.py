@@ -283,6 +283,11 @@ def test_show_on_a_non_graph_file(finished, tmp_path: Path, capsys) -> None:
     spec, _ = finished
     assert main(["show", str(spec)]) == 2
     _one_line_error(capsys.readouterr().err, "is not a readable contfil graph")
+    for name, text in (("g.graphml", "garbage"), ("g.graphml", "<graphml><graph>"),
+                       ("g.json", "{}")):
+        (tmp_path / name).write_text(text)
+        assert main(["show", str(tmp_path / name)]) == 2
+        _one_line_error(capsys.readouterr().err, "is not a")
     assert main(["show", str(tmp_path / "nothing")]) == 2
     _one_line_error(capsys.readouterr().err, "no such run directory")
 

@@ -197,3 +197,22 @@ def test_damaged_run_resume(finished_run: Path, tmp_path_factory, capsys, ops: l
         assert len(pa) == len(pb)
         for x, y in zip(pa, pb, strict=True):
             assert abs(x.p - y.p) <= 1e-12 and np.max(np.abs(x.u - y.u)) <= 1e-12
+
+
+@settings(max_examples=150, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(data=st.one_of(st.binary(max_size=200),
+                      st.sampled_from([b"{}", b"[]", b"null", b'{"nodes": 1, "edges": []}',
+                                       b"<graphml/>", b"<graphml><graph><node/></graph>",
+                                       b'{"directed": true, "nodes": [{"id": "B0"}]}']),
+                      st.text(max_size=200).map(lambda t: t.encode())),
+       suffix=st.sampled_from([".json", ".graphml"]))
+def test_graph_file_random_bytes(tmp_path: Path, data: bytes, suffix: str) -> None:
+    from contfil.store.run_store import load_run_graph
+
+    path = tmp_path / f"graph{suffix}"
+    path.write_bytes(data)
+    try:
+        load_run_graph(path)
+    except ContfilError as exc:
+        assert str(path) in str(exc)

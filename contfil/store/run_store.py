@@ -337,8 +337,9 @@ def load_run_graph(run: str | Path) -> Any:
     except ContfilError as exc:
         raise ContfilError(f"{path} is not a contfil graph: {exc}") from None
     except (OSError, ValueError, KeyError, TypeError, AttributeError, IndexError,
-            nx.NetworkXError) as exc:
-        # ValueError covers bad JSON / XML and text that is not UTF-8.
+            SyntaxError, nx.NetworkXError) as exc:
+        # ValueError: bad JSON, text that is not UTF-8; SyntaxError: bad XML
+        # (xml.etree's ParseError) in a .graphml file.
         hint = ""
         if run_dir is not None and _has_task_logs(run_dir):
             hint = (f"; `contfil run {run_dir / 'spec.toml'} --out {run_dir} --resume` "
