@@ -299,7 +299,10 @@ def test_too_large_problem_is_one_line(tmp_path: Path, capsys) -> None:
     spec.write_text(text)
     assert main(["run", str(spec), "--out", str(tmp_path / "r")]) == 2
     _one_line_error(capsys.readouterr().err, "scene.geometry.N: N = 100000 needs")
-    spec.write_text("[model]\nname = 'pitchfork'\n[simulate]\nt_end = 1e9\nframes = 1000000\n")
+    spec.write_text("[model]\nname = 'pitchfork'\n[simulate]\nt_end = 1e9\n")
+    assert main(["simulate", str(spec), "--out", str(tmp_path / "s")]) == 2
+    _one_line_error(capsys.readouterr().err, "simulate.t_end: t_end/dt = 1e+12 time steps")
+    spec.write_text("[model]\nname = 'pitchfork'\n[simulate]\nt_end = 1.0\nframes = 1000000\n")
     assert main(["simulate", str(spec), "--out", str(tmp_path / "s")]) == 2
     _one_line_error(capsys.readouterr().err, "simulate.frames: expected an integer <= 100000")
     assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()
