@@ -101,7 +101,10 @@ class RunStore:
 
     def _open_existing(self, spec: dict[str, Any] | None) -> None:
         if not self.manifest_path.exists():
-            raise ContfilError(f"--resume: {self.root} is not a run directory (no run.json)")
+            raise ContfilError(
+                f"--resume: {self.root} is not a run directory (no run.json); a directory "
+                "left by a run that an older contfil was starting holds nothing to resume: "
+                "delete it, or choose another --out")
         # The lock first: nothing is read or cleaned while another process writes.
         self.lock = RunLock(self.root).acquire()
         try:
