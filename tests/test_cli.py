@@ -162,7 +162,7 @@ def test_simulate_filament_relaxes_below_instability(tmp_path: Path) -> None:
     assert (tmp_path / "sim" / "observables.png").exists()
 
 
-def test_default_run_directory_never_reused(tmp_path: Path, monkeypatch) -> None:
+def test_default_run_directory_never_reused(tmp_path: Path, monkeypatch, capsys) -> None:
     monkeypatch.chdir(tmp_path)
     spec = tmp_path / "mini.toml"
     spec.write_text("[model]\nname = 'pitchfork'\n[continuation]\nrange = [-1.0, -0.5]\n"
@@ -171,8 +171,16 @@ def test_default_run_directory_never_reused(tmp_path: Path, monkeypatch) -> None
         assert main(["run", str(spec), "--quiet"]) == 0
     assert (tmp_path / "runs" / "mini" / "graph.json").exists()
     assert (tmp_path / "runs" / "mini-2" / "graph.json").exists()
-    # --resume without --out picks the newest run of that spec.
+    # --resume without --out picks the newest *interrupted* run of that spec:
+    # both are finished, so there is none (one line, exit 2) ...
+    assert main(["run", str(spec), "--quiet", "--resume"]) == 2
+    assert "no interrupted run of 'mini'" in capsys.readouterr().err
+    # ... and an older interrupted run is preferred to a newer finished one.
+    first = tmp_path / "runs" / "mini" / "run.json"
+    m = json.loads(first.read_text())
+    first.write_text(json.dumps(dict(m, status="running")))  # as a kill leaves it
     assert main(["run", str(spec), "--quiet", "--resume"]) == 0
     assert not (tmp_path / "runs" / "mini-3").exists()
-    m = json.loads((tmp_path / "runs" / "mini-2" / "run.json").read_text())
-    assert m["resumed"] == 1
+    assert json.loads(first.read_text())["resumed"] == 1
+    m2 = json.loads((tmp_path / "runs" / "mini-2" / "run.json").read_text())
+    assert "resumed" not in m2

@@ -13,7 +13,8 @@ from contfil.engine.continuation.driver import ContinuationSettings
 from contfil.engine.problems.equilibrium import EquilibriumProblem
 from contfil.explore import continuer as eco
 from contfil.explore import switchers as esw
-from contfil.explore.explorer import Explorer, ExplorerSettings, Progress
+from contfil.explore.explorer import Explorer, ExplorerSettings
+from contfil.explore.progress import ProgressDisplay
 from contfil.explore.seeds import Seed, SwitcherRegistry, as_seed
 from contfil.models.catalog import pitchfork, z2_pitchfork
 from contfil.protocol import Symmetries
@@ -41,7 +42,7 @@ def _explore(entry, symmetries, both: bool, depth: int = 2, calls: list | None =
                                     newton_tol=1e-12)
     ex = Explorer(root, eco.engine_continuer,
                   ExplorerSettings(depth=depth, both_directions=both, p_range=(-1.0, 1.0)),
-                  reg, settings, symmetries=symmetries, progress=Progress(enabled=False))
+                  reg, settings, symmetries=symmetries)
     return ex, ex.run()
 
 
@@ -127,7 +128,7 @@ def test_hopf_cycles_on_exact_circle() -> None:
                                     newton_tol=1e-10)
     ex = Explorer(root, eco.engine_continuer,
                   ExplorerSettings(depth=1, p_range=(-1.0, 0.5), max_points=6),
-                  default_switchers(), settings, progress=Progress(enabled=False))
+                  default_switchers(), settings)
     g = ex.run()
     assert [g.g.nodes[s]["kind"] for s in g.special_points] == ["hopf"]
     assert abs(g.special_point("S0").point.p) < 1e-8
@@ -157,8 +158,7 @@ def test_filament_upright_double_hopf_whirling(tmp_path) -> None:
     text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
                         'kinds = ["double_hopf", "hopf", "branch_point"]\n'
                         'branches = ["equilibrium", "rotating_wave"]')
-    res = run_study(loads_spec(text), out=tmp_path / "run", plots=False,
-                    progress=Progress(enabled=False))
+    res = run_study(loads_spec(text), out=tmp_path / "run", plots=False)
     g = res.graph
     up = g.branch("B0")
     assert up.kind == "equilibrium"
@@ -193,7 +193,7 @@ def test_o2_double_hopf_rotating_wave_only_when_asked() -> None:
                   ExplorerSettings(depth=1, p_range=(-1.0, 0.6), max_points=6,
                                    branch_kinds=("equilibrium", "rotating_wave")),
                   default_switchers(branch_kinds=("equilibrium", "rotating_wave")), settings,
-                  symmetries=e.model.symmetries, progress=Progress(enabled=False))
+                  symmetries=e.model.symmetries)
     g = ex.run()
     assert [g.branch(b).kind for b in g.branches] == ["equilibrium", "rotating_wave"]
     sp = g.special_point("S0")
@@ -204,22 +204,61 @@ def test_o2_double_hopf_rotating_wave_only_when_asked() -> None:
         assert pt.stable
 
 
-def test_progress_line_only_on_a_terminal() -> None:
+def test_progress_display_only_on_a_terminal() -> None:
     import io
+
+    from contfil.engine.branch import Point
+    from contfil.explore.observers import PointAccepted, SegmentEnded, SegmentStarted
+    from contfil.explore.stop import StopReason
 
     class Tty(io.StringIO):
         def isatty(self) -> bool:
             return True
 
     tty, pipe = Tty(), io.StringIO()
+    start = SegmentStarted(1, 1, "rotating_wave", "f", {}, 0, (30.0, 40.0), 40, 35.0)
     for stream in (tty, pipe):
-        pr = Progress(stream=stream)
-        pr.update("T0001+", "rotating_wave", "f", 35.25, 12, 1, force=True)
+        pr = ProgressDisplay(stream=stream, width=160)
+        pr.notify(start)
+        for n in range(1, 13):
+            p = 35.0 + 0.25 * n / 12
+            pt = Point(p=p, u=np.zeros(2), params=np.zeros(1))
+            pr.notify(PointAccepted(1, 1, pt, np.zeros(3), n, [object()] if n == 12 else []))
+        pr.notify(SegmentEnded(1, 1, StopReason("max_points"), 12))
         pr.close()
     out = tty.getvalue()
+    # The last point of the segment (no throttle hides it), with its counts.
     assert "T0001+" in out and "f=35.25" in out and "points=12" in out and "events=1" in out
-    assert "00:0" in out  # elapsed mm:ss
+    assert "ended: max_points" in out
+    assert "0:00:0" in out  # elapsed h:mm:ss
+    # The bar: 12 of max_points = 40 points (30 %) beats 0.25 / 5 of the range (5 %).
+    assert " 30%" in out
     assert pipe.getvalue() == ""
+
+
+def test_progress_fraction_is_points_or_range() -> None:
+    from contfil.explore.observers import SegmentStarted
+    from contfil.explore.progress import _fraction
+
+    up = SegmentStarted(0, 1, "equilibrium", "p", {}, 0, (0.0, 10.0), 100, 2.0)
+    assert _fraction(up, 6.0, 10) == pytest.approx(0.5)  # half-way from 2 to 10
+    assert _fraction(up, 2.5, 60) == pytest.approx(0.6)  # 60 of 100 points
+    down = SegmentStarted(0, -1, "equilibrium", "p", {}, 0, (0.0, 10.0), 100, 2.0)
+    assert _fraction(down, 0.5, 1) == pytest.approx(0.75)  # 1.5 of the 2 down to 0
+    unbounded = SegmentStarted(0, 1, "equilibrium", "p", {}, 0, (-np.inf, np.inf), 8, 0.0)
+    assert _fraction(unbounded, 1e9, 2) == pytest.approx(0.25)
+
+
+def test_progress_heartbeat_shows_time_in_current_point() -> None:
+    import time
+
+    from contfil.explore.progress import _Heartbeat
+
+    class FakeTask:
+        finished = False
+        fields = {"since": time.monotonic() - 12.34}
+
+    assert str(_Heartbeat().render(FakeTask())).startswith("point  12.3")
 
 
 def test_fold_is_passed_and_kept_as_unswitchable_node() -> None:
@@ -232,7 +271,7 @@ def test_fold_is_passed_and_kept_as_unswitchable_node() -> None:
     settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=0.5)
     ex = Explorer(Seed(problem, e.u0, e.p0), eco.engine_continuer,
                   ExplorerSettings(depth=2, p_range=(-1.0, 0.5)),
-                  esw.default_switchers(), settings, progress=Progress(enabled=False))
+                  esw.default_switchers(), settings)
     g = ex.run()
     assert len(g) == 1
     (sid,) = g.special_points
@@ -254,13 +293,13 @@ def test_root_direction_and_both_directions() -> None:
     for seed, lo_first in [(Seed(problem, np.zeros(2), 0.5, direction=-1), True),
                            (Seed(problem, np.zeros(2), 0.5, direction=1), False)]:
         g = Explorer(seed, eco.engine_continuer, ExplorerSettings(depth=0, p_range=(-1, 1)),
-                     SwitcherRegistry(), settings, progress=Progress(enabled=False)).run()
+                     SwitcherRegistry(), settings).run()
         ps = g.branch("B0").parameter_values()
         assert ps[0] == 0.5 and (ps[-1] == -1.0 if lo_first else ps[-1] == 1.0)
     # Both directions: one branch covering the whole range, in increasing order.
     seed = Seed(problem, np.zeros(2), 0.5, direction=1, both_directions=True)
     g = Explorer(seed, eco.engine_continuer, ExplorerSettings(depth=0, p_range=(-1, 1)),
-                 SwitcherRegistry(), settings, progress=Progress(enabled=False)).run()
+                 SwitcherRegistry(), settings).run()
     ps = g.branch("B0").parameter_values()
     assert ps[0] == -1.0 and ps[-1] == 1.0 and np.all(np.diff(ps) > 0)
     assert np.sum(np.isclose(ps, 0.5)) == 1  # the shared seed point appears once
@@ -331,7 +370,7 @@ def test_whirling_branch_agrees_with_time_integration(tmp_path) -> None:
     text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
                         'kinds = ["double_hopf"]\nbranches = ["equilibrium", "rotating_wave"]')
     spec = loads_spec(text)
-    res = run_study(spec, out=tmp_path / "run", plots=False, progress=Progress(enabled=False))
+    res = run_study(spec, out=tmp_path / "run", plots=False)
     whirl = res.graph.branch("B1")
     last = whirl.points[-1]
     assert whirl.kind == "rotating_wave" and last.p == f  # the engine lands on the bound
@@ -374,8 +413,7 @@ def test_filament_beating_born_unstable_at_double_hopf(tmp_path) -> None:
             .replace("[continuation]", "[continuation]\nstart = 30.0"))
     text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
                         'kinds = ["double_hopf"]\nbranches = ["equilibrium", "periodic_orbit"]')
-    res = run_study(loads_spec(text), out=tmp_path / "run", plots=False,
-                    progress=Progress(enabled=False))
+    res = run_study(loads_spec(text), out=tmp_path / "run", plots=False)
     g = res.graph
     (sid,) = g.special_points
     dh = g.special_point(sid)
@@ -389,3 +427,62 @@ def test_filament_beating_born_unstable_at_double_hopf(tmp_path) -> None:
     for pt in beat[0].points:
         assert pt.n_unstable >= 1  # unstable at birth (and just after)
         assert abs(pt.observables["tip_y"]) < 1e-10  # planar: the x-z plane
+
+
+def test_explorer_reports_through_events_in_order() -> None:
+    """The explorer writes nothing itself: observers see every segment start,
+    every accepted point (with its special points), every end and every
+    settled task, in order; what they see adds up to the graph."""
+    from contfil.explore import observers as ob
+
+    class Recorder:
+        def __init__(self) -> None:
+            self.events: list = []
+            self.closed = False
+
+        def notify(self, event) -> None:
+            self.events.append(event)
+
+        def close(self) -> None:
+            self.closed = True
+
+    e = z2_pitchfork()
+    rec = Recorder()
+    problem = EquilibriumProblem(e.model, e.param)
+    reg = SwitcherRegistry()
+    reg.register(BRANCH_POINT, esw.branch_point_seeds)
+    settings = ContinuationSettings(ds=0.05, ds_max=0.1, p_min=-1.0, p_max=1.0,
+                                    newton_tol=1e-12)
+    ex = Explorer(Seed(problem, e.u0, e.p0, direction=1, label="root"), eco.engine_continuer,
+                  ExplorerSettings(depth=2, p_range=(-1.0, 1.0)), reg, settings,
+                  observers=[rec])
+    g = ex.run()
+    assert rec.closed
+    open_segments: set = set()
+    n_points = n_specials = 0
+    for ev in rec.events:
+        if isinstance(ev, ob.SegmentStarted):
+            assert ev.task not in open_segments
+            open_segments.add(ev.task)
+        elif isinstance(ev, ob.PointAccepted):
+            assert ev.task in open_segments  # points only inside a started segment
+            n_points += 1
+            n_specials += len(ev.specials)
+        elif isinstance(ev, ob.SegmentEnded):
+            open_segments.remove(ev.task)
+    assert not open_segments
+    assert n_points == ex.n_computed_points
+    done = [ev for ev in rec.events if isinstance(ev, ob.BranchDone)]
+    assert [d.k for d in done] == list(range(ex.n_tasks)) == [0, 1, 2]
+    assert [d.outcome for d in done] == ["new", "new", "duplicate"]
+    assert [d.bid for d in done] == ["B0", "B1", "B1"]
+    # The third task is the mirror half of the pitchfork: stopped as a duplicate
+    # after dedup_after points by the one stop policy.
+    ends = [ev for ev in rec.events if isinstance(ev, ob.SegmentEnded)]
+    assert ends[-1].reason.kind == "duplicate" and ends[-1].reason.duplicate_of == "B1"
+    assert ends[-1].n_points == ExplorerSettings().dedup_after
+    # Every special point of the graph was announced with the step that found it.
+    assert n_specials >= len(g.special_points) >= 1
+    switches = [ev for ev in rec.events if isinstance(ev, ob.Switching)]
+    assert [s.kind for s in switches] == ["branch_point"]
+    assert any(isinstance(ev, ob.SwitchDone) for ev in rec.events)

@@ -104,11 +104,21 @@ def test_missing_file(tmp_path: Path) -> None:
 
 
 def test_bundled_specs_are_valid() -> None:
+    checked = []
     for path in sorted((ROOT / "branches").glob("*.toml")):
         text = path.read_text()
         if "[scene]" in text and "[continuation]" not in text:
             continue  # scene-only file: continuation tables not added yet
-        load_spec(path)
+        spec = load_spec(path)
+        assert spec.name == path.stem and spec.text == text
+        assert (spec.scene is None) != (spec.model is None)  # exactly one model source
+        lo, hi = spec.continuation["range"]
+        assert lo < hi
+        c = spec.continuation
+        assert c["ds_min"] <= c["ds"] <= c["ds_max"]
+        checked.append(path.stem)
+    # The README's default study is among the specs that were checked.
+    assert "default" in checked
 
 
 def test_user_guide_documents_every_key() -> None:
@@ -119,3 +129,34 @@ def test_user_guide_documents_every_key() -> None:
             assert re.search(rf"`{key}`", guide), f"{table}.{key} missing from user guide"
     for kind in KINDS:
         assert kind in guide
+
+
+@pytest.mark.parametrize(
+    ("text", "needle"),
+    [
+        ("[model]\nname = 'pitchfork'\n[simulate]\nt_end = 1.0\ndt = 2.0\n",
+         "simulate.dt: expected <= t_end (1), got 2"),
+        ("[model]\nname = 'pitchfork'\n[continuation]\nrange = [0, 1]\ntol = 1e-300\n",
+         "continuation.tol: expected at least 1e-14 (double precision cannot reach"),
+        ("[model]\nname = 'pitchfork'\n[simulate]\nframes = 1000000000\n",
+         "simulate.frames: expected an integer <= 100000"),
+    ],
+)
+def test_silent_mistakes_are_spec_errors(text: str, needle: str) -> None:
+    with pytest.raises(SpecError) as exc:
+        loads_spec(text)
+    assert str(exc.value).startswith(needle.split(":")[0]) and needle in str(exc.value)
+
+
+def test_sizes_validated_up_front() -> None:
+    from contfil.app.spec import MAX_SIM_STEPS, dense_memory_bytes
+
+    # N = 100000: (3N)^2 doubles, ~8 matrices: terabytes, refused before any allocation.
+    assert dense_memory_bytes(100_000) > 5e12
+    with pytest.raises(SpecError, match=r"scene\.geometry\.N: N = 100000 needs ~5\.76e\+03 GB"):
+        loads_spec(SCENE.replace("N = 6", "N = 100000"))
+    too_long = SCENE + "\n[simulate]\nt_end = 1e9\ndt = 1e-3\n"
+    with pytest.raises(SpecError, match=r"simulate\.t_end: t_end/dt = 1e\+12 time steps"):
+        loads_spec(too_long)
+    ok = loads_spec(SCENE + f"\n[simulate]\nt_end = {MAX_SIM_STEPS * 1e-3:g}\ndt = 1e-3\n")
+    assert ok.simulate["t_end"] == MAX_SIM_STEPS * 1e-3

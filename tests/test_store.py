@@ -2,21 +2,20 @@
 
 from __future__ import annotations
 
-import os
 import random
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from faults import contfil_process
 
 from contfil.app.spec import load_spec
 from contfil.app.study import run_study
 from contfil.errors import ContfilError
-from contfil.explore.explorer import Progress
+from contfil.explore.progress import ProgressDisplay
 from contfil.store.atomic import RecordLog, atomic_write_json, decode_record, encode_record
 from contfil.store.run_store import RunStore, parse_task_records
 
@@ -94,8 +93,13 @@ def test_store_refuses_to_overwrite_and_checks_resume(tmp_path: Path) -> None:
         RunStore(tmp_path / "r", spec={"a": 1})
     with pytest.raises(ContfilError, match="spec differs"):
         RunStore(tmp_path / "r", spec={"a": 2}, resume=True)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "notes.txt").write_text("mine")
     with pytest.raises(ContfilError, match="not a run directory"):
-        RunStore(tmp_path / "nothing", resume=True)
+        RunStore(tmp_path / "other", resume=True)
+    # A resume of a run killed before its directory appeared starts it.
+    with RunStore(tmp_path / "nothing", spec={"a": 1}, resume=True) as st:
+        assert st.created and (tmp_path / "nothing" / "run.json").exists()
     RunStore(tmp_path / "r", spec={"a": 1, "output": {"plots": False}}, resume=True)
 
 
@@ -131,15 +135,13 @@ def reference(tmp_path_factory):
     d = tmp_path_factory.mktemp("ref")
     spec_path = d / "spec.toml"
     spec_path.write_text(SPEC)
-    res = run_study(load_spec(spec_path), out=d / "run", progress=Progress(enabled=False))
+    res = run_study(load_spec(spec_path), out=d / "run")
     assert len(res.graph) == 2
     return spec_path, res
 
 
-def _cli(args: list[str], env_extra: dict[str, str] | None = None) -> subprocess.Popen:
-    env = dict(os.environ, MPLBACKEND="Agg", **(env_extra or {}))
-    return subprocess.Popen([sys.executable, "-m", "contfil", *args], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+def _cli(args: list[str], fault: str = "none") -> subprocess.Popen:
+    return contfil_process(args, fault)
 
 
 O2_SPEC = """
@@ -168,16 +170,16 @@ def test_kill_inside_rotating_wave_branch_then_resume(tmp_path: Path) -> None:
     spec_path = tmp_path / "o2.toml"
     spec_path.write_text(O2_SPEC)
     spec = load_spec(spec_path)
-    ref = run_study(spec, out=tmp_path / "ref", progress=Progress(enabled=False))
+    ref = run_study(spec, out=tmp_path / "ref")
     n_root = len(ref.graph.branch("B0").points)
     assert [b.kind for b in ref.graph.branches.values()] == ["equilibrium", "rotating_wave"]
     run = tmp_path / "run"
     p = _cli(["run", str(spec_path), "--out", str(run), "--quiet"],
-             {"CONTFIL_TEST_CRASH_AFTER": str(n_root + 4)})
+             f"point:{n_root + 4}")
     p.wait(timeout=120)
     assert p.returncode == -signal.SIGKILL
     calls: list[str] = []
-    res = run_study(spec, out=run, resume=True, progress=Progress(enabled=False),
+    res = run_study(spec, out=run, resume=True, progress=ProgressDisplay(enabled=False),
                     switchers=_counting_switchers(calls)())
     # The unfinished whirling branch needs its problem: its switch is redone, once.
     assert calls == ["double_hopf"]
@@ -215,11 +217,9 @@ def test_resume_reuses_stored_switches(tmp_path: Path) -> None:
     spec_path = tmp_path / "o2.toml"
     spec_path.write_text(O2_SPEC)
     spec = load_spec(spec_path)
-    ref = run_study(spec, out=tmp_path / "ref", switchers=counting(),
-                    progress=Progress(enabled=False))
+    ref = run_study(spec, out=tmp_path / "ref", switchers=counting())
     assert calls == ["double_hopf"]
-    again = run_study(spec, out=tmp_path / "ref", resume=True, switchers=counting(),
-                      progress=Progress(enabled=False))
+    again = run_study(spec, out=tmp_path / "ref", resume=True, switchers=counting())
     assert calls == ["double_hopf"]  # nothing recomputed
     assert again.n_computed_points == 0
     _assert_equal_runs(ref.graph, again.graph)
@@ -233,14 +233,14 @@ def test_injected_kills_then_resume_equal_uninterrupted(reference, tmp_path: Pat
     run = tmp_path / "run"
     # 1st process: killed (SIGKILL) halfway through writing its 31st point record.
     p = _cli(["run", str(spec_path), "--out", str(run), "--quiet"],
-             {"CONTFIL_TEST_CRASH_AFTER": "30", "CONTFIL_TEST_CRASH_TORN": "1"})
+             "torn:30")
     p.wait(timeout=120)
     assert p.returncode == -signal.SIGKILL
     last = sorted((run / "tasks").iterdir())[-1]
     assert not last.read_bytes().endswith(b"\n")  # the torn record is really there
     # 2nd process: resumes, and is killed again (cleanly between records) later.
     p = _cli(["run", str(spec_path), "--out", str(run), "--quiet", "--resume"],
-             {"CONTFIL_TEST_CRASH_AFTER": "25"})
+             "point:25")
     p.wait(timeout=120)
     assert p.returncode == -signal.SIGKILL
     # An interrupted run can be inspected.
@@ -248,10 +248,10 @@ def test_injected_kills_then_resume_equal_uninterrupted(reference, tmp_path: Pat
 
     assert main(["show", str(run)]) == 0
     out = capsys.readouterr().out
-    assert "status: running" in out and "(running or interrupted)" in out
+    # Killed: nobody holds the lock, the manifest is not complete.
+    assert "status: interrupted" in out and "(unfinished)" in out
     # 3rd: resume to the end, in process.
-    res = run_study(load_spec(spec_path), out=run, resume=True,
-                    progress=Progress(enabled=False))
+    res = run_study(load_spec(spec_path), out=run, resume=True)
     _assert_equal_runs(ref.graph, res.graph)
     total = _check_logs(run)
     # Nothing recomputed: the three processes computed each point once.
@@ -275,7 +275,7 @@ def test_random_sigkill_then_resume_equal_uninterrupted(reference, tmp_path: Pat
         time.sleep(0.002)
     p.wait(timeout=60)
     assert p.returncode == -signal.SIGKILL, "the run ended before it could be killed"
-    res = run_study(load_spec(spec_path), out=run, resume=True, progress=Progress(enabled=False))
+    res = run_study(load_spec(spec_path), out=run, resume=True)
     _assert_equal_runs(ref.graph, res.graph)
     _check_logs(run)
 
@@ -292,7 +292,7 @@ def test_sigterm_stops_cleanly_and_resumes(reference, tmp_path: Path) -> None:
             break
         time.sleep(0.002)
     _, err = p.communicate(timeout=60)
-    assert p.returncode == 130
+    assert p.returncode == 143  # 128 + SIGTERM, as a shell reports it
     assert err.decode().strip().endswith("interrupted (resume with --resume)")
-    res = run_study(load_spec(spec_path), out=run, resume=True, progress=Progress(enabled=False))
+    res = run_study(load_spec(spec_path), out=run, resume=True)
     _assert_equal_runs(ref.graph, res.graph)

@@ -8,9 +8,21 @@
     contfil plot RUN [--out DIR] [--observable NAME]
     contfil show RUN
 
-Errors in the input (bad spec, missing run) print one line ``contfil: error:
-...`` naming the problem and exit with status 2; operating-system errors
-(disk full, permissions) print one line and exit with status 1.
+Errors in the input (bad spec, missing or damaged run) print one line
+``contfil: error: ...`` naming the problem and exit with status 2;
+operating-system errors (disk full, permissions) print one line and exit
+with status 1. Ctrl-C (SIGINT) and ``kill`` (SIGTERM) print ``contfil:
+interrupted`` and exit with 130 and 143 (128 + the signal number, as a
+shell reports it); what was stored is kept and ``--resume`` carries on.
+
+Why interrupts need more than ``except KeyboardInterrupt``: a signal that
+lands while numba-compiled code runs makes the exception surface as a
+``SystemError: ... returned a result with an exception set`` (or be swallowed
+by a solver that treats any exception as a failed step). The handler
+therefore also sets a flag (:data:`contfil.explore.stop.STOP`): the
+explorer checks it between points and before recording any outcome, and
+the top level reports *any* exception raised while the flag is set as the
+interrupt it is.
 """
 
 from __future__ import annotations
@@ -23,9 +35,32 @@ import threading
 import time
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import contfil._blas_threads  # noqa: F401  (before numpy is imported)
-from contfil.errors import ContfilError, SpecError
+from contfil.errors import ContfilError
+
+# Signals that arrive while the program is still importing (numpy, numba,
+# scipy take a second or more) are remembered here and reported by main():
+# a KeyboardInterrupt raised inside an import would end in a traceback.
+# Installed only when this module is imported as the program (console
+# script or `python -m contfil`), never when a library user imports it.
+_EARLY_SIGNALS: list[int] = []
+
+
+def _remember_signal(signum: int, frame: object) -> None:
+    _EARLY_SIGNALS.append(signum)
+
+
+if (threading.current_thread() is threading.main_thread()
+        and Path(sys.argv[0]).name in ("contfil", "__main__.py")
+        and "contfil" in sys.argv[0]):
+    for _sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(_sig, _remember_signal)
+
+if TYPE_CHECKING:
+    from contfil.explore.stop import StopRequest
+    from contfil.graph.branch_graph import BranchGraph
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -71,11 +106,11 @@ def _parser() -> argparse.ArgumentParser:
 def _cmd_run(args: argparse.Namespace) -> int:
     from contfil.app.spec import load_spec
     from contfil.app.study import run_study
-    from contfil.explore.explorer import Progress
+    from contfil.explore.progress import ProgressDisplay
 
     spec = load_spec(args.spec)
     t0 = time.monotonic()
-    progress = Progress(enabled=False) if args.quiet else Progress()
+    progress = ProgressDisplay(enabled=False) if args.quiet else ProgressDisplay()
     res = run_study(spec, out=args.out, resume=args.resume, progress=progress,
                     plots=False if args.no_plots else None)
     if not args.quiet:
@@ -99,7 +134,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
         from contfil.store.atomic import atomic_write_bytes, atomic_write_text
 
-        out = Path(args.output) if args.output else Path(args.run) / f"states.{args.format}"
+        out = Path(args.output) if args.output else _run_dir(args.run) / f"states.{args.format}"
         sg = g.state_graph()
         if args.format == "json":
             atomic_write_text(out, json.dumps(nx.node_link_data(sg, edges="edges")))
@@ -107,9 +142,9 @@ def _cmd_export(args: argparse.Namespace) -> int:
             atomic_write_bytes(out, "\n".join(nx.generate_graphml(sg)).encode("utf-8"))
         print(out)
         return 0
-    out = Path(args.output) if args.output else Path(args.run) / f"graph.{args.format}"
+    out = Path(args.output) if args.output else _run_dir(args.run) / f"graph.{args.format}"
     if args.format == "json":
-        if out.resolve() == (Path(args.run) / "graph.json").resolve():
+        if out.resolve() == (_run_dir(args.run) / "graph.json").resolve():
             print(out)  # the run's own graph.json is already the node-link export
             return 0
         save_graph_json(g, out)
@@ -119,10 +154,32 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_plot(args: argparse.Namespace) -> int:
-    from contfil.plot.diagrams import as_graph, save_run_plots
+def _run_dir(run: str) -> Path:
+    """The run directory of a ``RUN`` argument (a directory or a graph file in one)."""
+    path = Path(run)
+    return path if path.is_dir() else path.parent
 
-    g = as_graph(args.run)
+
+def graph_observables(g: BranchGraph) -> list[str]:
+    """Scalar observables stored with the points of a graph (``mean_`` of a
+    cycle folded into its name), and ``norm``."""
+    import numpy as np
+
+    names = {"norm"}
+    for _, _, pt in g.iter_points():
+        for k, v in pt.observables.items():
+            if np.ndim(v) == 0:
+                names.add(k[len("mean_"):] if k.startswith("mean_") else k)
+    return sorted(names)
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from contfil.app.study import check_observable
+    from contfil.plot.diagrams import save_run_plots
+    from contfil.store.run_store import load_run_graph
+
+    g = load_run_graph(args.run)
+    check_observable(args.observable, graph_observables(g), "plot --observable")
     out = Path(args.out) if args.out else Path(args.run) / "plots"
     files = save_run_plots(g, out, args.observable)
     spec_file = Path(args.run) / "spec.toml"
@@ -133,27 +190,34 @@ def _cmd_plot(args: argparse.Namespace) -> int:
         from contfil.plot.shapes import save_shape_plots
 
         files += save_shape_plots(build_model(load_spec(spec_file)).model, g, out)
+    elif Path(args.run).is_dir():
+        print(f"contfil: warning: no spec.toml in {args.run}: shape plots skipped "
+              "(they need the model)", file=sys.stderr)
     for f in files:
         print(f)
     return 0
 
 
 def _cmd_show(args: argparse.Namespace) -> int:
-    from contfil.store.run_store import RunStore, load_run_graph, task_summaries
+    from contfil.store.run_store import load_run_graph, run_state, task_summaries
 
     run = Path(args.run)
-    status = "complete"
-    if (run / "run.json").exists():
-        status = RunStore.read_manifest(run).get("status", "?")
-    if (run / "graph.json").exists() or run.is_file():
+    if not run.exists():
+        raise ContfilError(f"{run}: no such run directory or graph file")
+    if run.is_file():
         print(load_run_graph(run).summary())
-    if run.is_dir() and status != "complete":
+        return 0
+    if not (run / "run.json").exists() and not (run / "graph.json").exists():
+        load_run_graph(run)  # raises the clear error (naming intact task logs, if any)
+    state = run_state(run)
+    if (run / "graph.json").exists():
+        print(load_run_graph(run).summary())
+    print(f"status: {state}")
+    if state != "finished":
         # A run in progress (or interrupted): what the task logs hold so far.
-        print(f"status: {status}; tasks:")
+        print("tasks:")
         for line in task_summaries(run):
             print("  " + line)
-    elif not (run / "graph.json").exists() and not run.is_file():
-        load_run_graph(run)  # raises the usual clear error
     return 0
 
 
@@ -171,34 +235,78 @@ def _cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _terminate(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
-
-
 COMMANDS = {"run": _cmd_run, "simulate": _cmd_simulate, "export": _cmd_export,
             "plot": _cmd_plot, "show": _cmd_show}
+
+
+def _interrupt_status(exc: BaseException, stop: StopRequest) -> int | None:
+    """Exit status if ``exc`` is (or was caused by) an interrupt, else ``None``."""
+    from contfil.explore.stop import Interrupted
+
+    if isinstance(exc, Interrupted):
+        return exc.exit_status
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        # numba re-raises a KeyboardInterrupt as a SystemError whose context
+        # (or cause) is the interrupt.
+        if isinstance(e, KeyboardInterrupt):
+            return 128 + (stop.signum or signal.SIGINT)
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    if stop.requested:
+        return 128 + int(stop.signum or signal.SIGINT)
+    return None
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``contfil`` console script; returns the exit status."""
     os.environ.setdefault("MPLBACKEND", "Agg")
     args = _parser().parse_args(argv)
-    if threading.current_thread() is threading.main_thread():
-        # `kill` (SIGTERM) ends like Ctrl-C: what is stored is kept, one line says so.
-        signal.signal(signal.SIGTERM, _terminate)
+    from contfil.explore.stop import Interrupted, stop_on_signals
+
+    hint = " (resume with --resume)" if args.command == "run" else ""
     try:
-        return COMMANDS[args.command](args)
-    except (SpecError, ContfilError) as exc:
-        msg = " ".join(str(exc).split())  # one line
-        print(f"contfil: error: {msg}", file=sys.stderr)
+        with stop_on_signals() as stop:
+            if _EARLY_SIGNALS:
+                raise Interrupted(_EARLY_SIGNALS[0])
+            try:
+                return COMMANDS[args.command](args)
+            except BaseException as exc:  # noqa: BLE001 - every path ends in one line
+                status = _interrupt_status(exc, stop)
+                if status is not None:
+                    print(f"contfil: interrupted{hint}", file=sys.stderr)
+                    return status
+                return _report(exc)
+    except Interrupted as exc:
+        # A signal that arrived while leaving (handlers are restored last).
+        print(f"contfil: interrupted{hint}", file=sys.stderr)
+        return exc.exit_status
+
+
+def _report(exc: BaseException) -> int:
+    """Print one line for ``exc`` and return the exit status (or re-raise)."""
+    if isinstance(exc, ContfilError):
+        print(f"contfil: error: {_one_line(exc)}", file=sys.stderr)
         return 2
-    except OSError as exc:
+    if isinstance(exc, OSError):
         # Disk full, permissions, ...: not a bad spec, but still one clear line.
-        print(f"contfil: error: {exc}", file=sys.stderr)
+        print(f"contfil: error: {_one_line(exc)}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print("contfil: interrupted (resume with --resume)", file=sys.stderr)
-        return 130
+    if isinstance(exc, MemoryError):
+        print("contfil: error: out of memory (the problem is too large for this "
+              "machine; reduce its size)", file=sys.stderr)
+        return 1
+    if not isinstance(exc, Exception) or os.environ.get("CONTFIL_DEBUG"):
+        raise exc
+    # A bug: still one line for the user; CONTFIL_DEBUG=1 shows the traceback.
+    print(f"contfil: error: unexpected {type(exc).__name__}: {_one_line(exc)} "
+          "(a bug: please report it; CONTFIL_DEBUG=1 shows the traceback)", file=sys.stderr)
+    return 1
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 if __name__ == "__main__":  # pragma: no cover

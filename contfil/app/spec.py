@@ -30,7 +30,8 @@ from contfil.errors import SpecError
 Checker = Callable[[str, Any], Any]
 
 
-def _number(positive: bool = False, nonneg: bool = False) -> Checker:
+def _number(positive: bool = False, nonneg: bool = False,
+            minimum: float | None = None, why: str = "") -> Checker:
     def check(key: str, v: Any) -> float:
         if isinstance(v, bool) or not isinstance(v, int | float):
             raise SpecError(f"{key}: expected a number, got {type(v).__name__} {v!r}")
@@ -41,17 +42,21 @@ def _number(positive: bool = False, nonneg: bool = False) -> Checker:
             raise SpecError(f"{key}: expected a positive number, got {v!r}")
         if nonneg and v < 0:
             raise SpecError(f"{key}: expected a non-negative number, got {v!r}")
+        if minimum is not None and v < minimum:
+            raise SpecError(f"{key}: expected at least {minimum:g}{why}, got {v!r}")
         return v
 
     return check
 
 
-def _integer(minimum: int | None = None) -> Checker:
+def _integer(minimum: int | None = None, maximum: int | None = None) -> Checker:
     def check(key: str, v: Any) -> int:
         if isinstance(v, bool) or not isinstance(v, int):
             raise SpecError(f"{key}: expected an integer, got {type(v).__name__} {v!r}")
         if minimum is not None and v < minimum:
             raise SpecError(f"{key}: expected an integer >= {minimum}, got {v!r}")
+        if maximum is not None and v > maximum:
+            raise SpecError(f"{key}: expected an integer <= {maximum}, got {v!r}")
         return int(v)
 
     return check
@@ -107,6 +112,21 @@ def _table(key: str, v: Any) -> dict[str, Any]:
     return dict(v)
 
 
+# Newton tolerance floor: a residual norm evaluated in double precision
+# carries round-off of ~n * 2.2e-16 * (size of the terms); below 1e-14 a
+# Newton iteration of an O(1) problem stalls on round-off, the first point
+# "fails" and the branch ends after one point.
+MIN_TOL = 1e-14
+
+# Most stored snapshots of `contfil simulate` (each a full state in memory).
+MAX_FRAMES = 100_000
+
+# Most time steps (t_end/dt) of a simulation: a filament stores the tip and
+# the observables at every step (~10^2 bytes), so 10^7 steps are ~1 GB and
+# hours of work; a catalog model's adaptive integration over t_end = 10^9
+# (the default dt = 1e-3) did not finish in minutes.
+MAX_SIM_STEPS = 10_000_000
+
 # Special-point kinds a spec may ask the explorer to follow.
 KINDS = ("fold", "branch_point", "hopf", "double_hopf", "cycle_fold", "cycle_branch_point",
          "period_doubling", "torus")
@@ -134,7 +154,9 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "ds_min": (_number(positive=True), 1e-6, False, "smallest step before giving up"),
         "ds_max": (_number(positive=True), 0.1, False, "largest step"),
         "max_points": (_integer(1), 200, False, "points per direction of a branch"),
-        "tol": (_number(positive=True), 1e-10, False, "Newton tolerance (residual norm)"),
+        "tol": (_number(positive=True, minimum=MIN_TOL,
+                        why=" (double precision cannot reach a smaller residual)"),
+                1e-10, False, "Newton tolerance (residual norm)"),
         "max_newton": (_integer(1), 10, False, "Newton iterations per step"),
         "stability": (_boolean, True, False, "compute eigenvalues/multipliers at points"),
         "both_directions": (_boolean, False, False, "continue the root branch both ways"),
@@ -159,7 +181,7 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
     "simulate": {
         "t_end": (_number(positive=True), 1.0, False, "integration time"),
         "dt": (_number(positive=True), 1e-3, False, "time step"),
-        "frames": (_integer(2), 40, False, "stored snapshots"),
+        "frames": (_integer(2, MAX_FRAMES), 40, False, "stored snapshots"),
         "strength": (_number(), None, False, "actuation value (default: the scene's)"),
         "perturbation": (_number(nonneg=True), 1e-2, False,
                          "amplitude of the initial perturbation of the upright state"),
@@ -266,6 +288,12 @@ def parse_spec(doc: Mapping[str, Any], path: str | Path | None = None, text: str
                                 f"of {list(BRANCH_KINDS)}")
     out = _check_table("output", doc.get("output", {}))
     sim = _check_table("simulate", doc.get("simulate", {}))
+    if sim["dt"] > sim["t_end"]:
+        raise SpecError(f"simulate.dt: expected <= t_end ({sim['t_end']:g}), got {sim['dt']:g}")
+    if sim["t_end"] / sim["dt"] > MAX_SIM_STEPS:
+        raise SpecError(
+            f"simulate.t_end: t_end/dt = {sim['t_end'] / sim['dt']:.3g} time steps, at most "
+            f"{MAX_SIM_STEPS:.0e}; shorten t_end or enlarge dt")
     return Spec(continuation=cont, explorer=expl, output=out, simulate=sim, scene=scene,
                 model=model, path=None if path is None else Path(path), text=text,
                 raw=dict(doc))
@@ -278,7 +306,39 @@ def _validate_scene(scene: dict[str, Any]) -> None:
         from contfil.models.filament.scene import load_scene
     except ImportError:  # pragma: no cover - filament package absent
         return
-    load_scene({"scene": scene})
+    try:
+        sc = load_scene({"scene": scene})
+    except SpecError:
+        raise
+    except (TypeError, ValueError, KeyError, AttributeError, IndexError) as exc:
+        # The scene parser names the key for what it checks; anything else
+        # it trips over is still a bad [scene] table, said in one line.
+        raise SpecError(f"scene: invalid table ({type(exc).__name__}: {exc})") from None
+    n = int(getattr(sc, "N", 0))
+    need = dense_memory_bytes(n)
+    have = physical_memory_bytes()
+    if have is not None and need > have // 2:
+        raise SpecError(
+            f"scene.geometry.N: N = {n} needs ~{need / 1e9:.3g} GB for its dense "
+            f"matrices, more than half of this machine's {have / 1e9:.3g} GB")
+
+
+def dense_memory_bytes(n_segments: int) -> int:
+    """Rough memory of a filament of ``n_segments``: the dense 3N x 3N
+    mobility and the Jacobians of continuation and Floquet work, ~8 such
+    float64 matrices alive at once."""
+    dim = 3 * (n_segments + 1)
+    return 8 * 8 * dim * dim
+
+
+def physical_memory_bytes() -> int | None:
+    """Physical memory of this machine (``None`` if the OS does not say)."""
+    import os
+
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
 
 
 def load_spec(path: str | Path) -> Spec:

@@ -16,13 +16,14 @@ from contfil.engine.continuation.driver import ContinuationSettings
 from contfil.engine.problems.equilibrium import EquilibriumProblem
 from contfil.errors import ContfilError, SpecError
 from contfil.explore.continuer import engine_continuer
-from contfil.explore.explorer import Explorer, ExplorerSettings, Progress
+from contfil.explore.explorer import Explorer, ExplorerSettings
+from contfil.explore.progress import ProgressDisplay
 from contfil.explore.seeds import Seed
 from contfil.explore.switchers import default_switchers
 from contfil.graph.branch_graph import BranchGraph
 from contfil.models.registry import ModelInfo
 from contfil.models.registry import build_model as _build_model
-from contfil.store.run_store import RunStore, save_graph_graphml
+from contfil.store.run_store import RunStore, run_state, save_graph_graphml
 
 
 @dataclass
@@ -38,16 +39,23 @@ class StudyResult:
 
 def default_run_dir(spec: Spec, resume: bool = False, base: str | Path = "runs") -> Path:
     """``runs/<spec name>``; a fresh run never reuses a directory, it takes
-    ``-2``, ``-3``, ... and ``resume`` picks the newest existing one."""
+    ``-2``, ``-3``, ...; ``resume`` picks the newest *interrupted* run (one
+    that is neither finished nor running in another process)."""
     base = Path(base)
     stem = spec.output.get("dir") or str(base / spec.name)
     first = Path(stem)
     candidates = [first] + [Path(f"{stem}-{k}") for k in range(2, 1000)]
-    existing = [c for c in candidates if c.exists() and any(c.iterdir())]
+    existing = [c for c in candidates if c.is_dir() and any(c.iterdir())]
     if resume:
         if not existing:
             raise ContfilError(f"--resume: no run of {spec.name!r} under {first.parent}/")
-        return existing[-1]
+        states = {c: run_state(c) for c in existing}
+        interrupted = [c for c in existing if states[c] == "interrupted"]
+        if not interrupted:
+            listing = ", ".join(f"{c} ({states[c]})" for c in existing[-3:])
+            raise ContfilError(f"--resume: no interrupted run of {spec.name!r} under "
+                               f"{first.parent}/ ({listing}); pass --out to pick one")
+        return interrupted[-1]
     for c in candidates:
         if not (c.exists() and any(c.iterdir())):
             return c
@@ -74,6 +82,38 @@ def continuation_parameter(spec: Spec, info: ModelInfo) -> str:
             f"continuation.parameter: model {model.name!r} has no parameter {name!r}; "
             f"known: {list(model.param_names)}")
     return str(name)
+
+
+def require_continuation(spec: Spec) -> None:
+    """A study needs a ``[continuation]`` table with a ``range``."""
+    if spec.continuation.get("range") is None:
+        if spec.raw and "continuation" not in spec.raw:
+            raise SpecError("continuation: missing table; `contfil run` needs [continuation] "
+                            "with at least range = [low, high]")
+        raise SpecError("continuation.range: missing; [low, high] window of the parameter")
+
+
+def known_observables(info: ModelInfo, seed: Seed) -> list[str]:
+    """Scalar observables the model reports (at the root seed), and ``norm``."""
+    model = info.model
+    names = {"norm"}
+    obs = getattr(model, "observables", None)
+    if obs is not None:
+        try:
+            values = obs(np.asarray(seed.x0, dtype=float), seed.problem.params_at(seed.p0))
+        except (ContfilError, ValueError, ArithmeticError, np.linalg.LinAlgError):
+            values = {}
+        names |= {str(k) for k, v in dict(values).items() if np.ndim(v) == 0}
+    return sorted(names)
+
+
+def check_observable(name: str | None, known: list[str], where: str) -> None:
+    """``name`` must be one of ``known`` (a cycle's ``mean_<name>`` included)."""
+    if name is None:
+        return
+    base = name[len("mean_"):] if name.startswith("mean_") else name
+    if name not in known and base not in known:
+        raise SpecError(f"{where}: unknown observable {name!r}; known: {known}")
 
 
 def root_seed(spec: Spec, info: ModelInfo) -> Seed:
@@ -134,7 +174,7 @@ def run_study(
     spec: Spec | str | Path,
     out: str | Path | None = None,
     resume: bool = False,
-    progress: Progress | None = None,
+    progress: ProgressDisplay | None = None,
     plots: bool | None = None,
     continuer: Any = None,
     switchers: Any = None,
@@ -151,7 +191,8 @@ def run_study(
         Carry on an interrupted run in ``out``; finished branches are read
         back, the interrupted one continues from its last stored point.
     progress:
-        Status display (default: on a TTY only).
+        Progress display (default: :class:`ProgressDisplay`, drawn on a
+        terminal only; ``ProgressDisplay(enabled=False)`` for none).
     plots:
         Override ``output.plots``.
     continuer, switchers:
@@ -159,11 +200,32 @@ def run_study(
     """
     if not isinstance(spec, Spec):
         spec = load_spec(spec)
-    run_dir = Path(out) if out is not None else default_run_dir(spec, resume)
+    # Everything that can be checked is checked before the run directory exists.
+    require_continuation(spec)
     info = build_model(spec)
     seed = root_seed(spec, info)
+    check_observable(spec.output["observable"], known_observables(info, seed),
+                     "output.observable")
+    settings = engine_settings(spec)
+    exp_settings = explorer_settings(spec)
+    switchers = switchers if switchers is not None else default_switchers(
+        branch_kinds=None if spec.explorer["branches"] is None
+        else tuple(spec.explorer["branches"]))
+    run_dir = Path(out) if out is not None else default_run_dir(spec, resume)
+    display = progress if progress is not None else ProgressDisplay()
     store = RunStore(run_dir, spec=spec.raw, spec_text=spec.text, resume=resume,
                      fsync=spec.output["fsync"])
+    try:
+        return _run(spec, info, seed, settings, exp_settings, switchers, continuer, store,
+                    display, run_dir, resume, plots)
+    finally:
+        store.close()
+
+
+def _run(spec: Spec, info: ModelInfo, seed: Seed, settings: ContinuationSettings,
+         exp_settings: ExplorerSettings, switchers: Any, continuer: Any, store: RunStore,
+         display: ProgressDisplay, run_dir: Path, resume: bool,
+         plots: bool | None) -> StudyResult:
     meta = {
         "name": spec.name,
         "model": str(getattr(info.model, "name", "model")),
@@ -173,17 +235,15 @@ def run_study(
     explorer = Explorer(
         root=seed,
         continuer=continuer or engine_continuer,
-        settings=explorer_settings(spec),
-        switchers=switchers if switchers is not None else default_switchers(
-            branch_kinds=None if spec.explorer["branches"] is None
-            else tuple(spec.explorer["branches"])),
-        continuation_settings=engine_settings(spec),
+        settings=exp_settings,
+        switchers=switchers,
+        continuation_settings=settings,
         store=store,
+        observers=[display],
         symmetries=getattr(info.model, "symmetries", None),
-        progress=progress,
         meta=meta,
     )
-    explorer.progress.message(
+    display.message(
         f"{'resuming' if resume else 'run'} {spec.name}: writing to {run_dir} "
         f"(`contfil show {run_dir}` reports progress)")
     graph = explorer.run()

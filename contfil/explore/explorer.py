@@ -9,11 +9,17 @@ routes is stored once (the second route only adds a ``born`` edge). The
 test also runs early, after ``dedup_after`` points, so a duplicate is
 abandoned before it is computed in full.
 
-Every accepted point goes to the run store as it is accepted. The exploration
-is deterministic, so a resumed run replays it: finished tasks are read back
-from their logs instead of being recomputed, the unfinished one is continued
-from its last stored point (the continuer restores the iterator state from
-it: last points, tangent, step size), and the rest is computed as normal.
+The explorer does not write anything itself: it emits events (a segment
+started, a point accepted with the special points found on the way, a
+segment ended, a branch settled, a switch computed) to its observers
+(:mod:`contfil.explore.observers`); the run store and the progress display
+are two of them. When a segment ends is decided in one place
+(:class:`StopPolicy`). The exploration is deterministic, so a resumed run
+replays it from the store's records (``history``): finished tasks are read
+back from their logs instead of being recomputed, the unfinished one is
+continued from its last stored point (the continuer restores the iterator
+state from it: last points, tangent, step size), and the rest is computed
+as normal.
 
 The continuation itself is pluggable (:class:`Continuer`): the engine adapter
 in :mod:`contfil.explore.continuer` is the production one; tests may use
@@ -22,9 +28,8 @@ any iterator of :class:`Step`.
 
 from __future__ import annotations
 
-import time
 from collections import deque
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -32,10 +37,30 @@ import numpy as np
 
 from contfil.engine.branch import Branch, Point, SpecialPoint, decode, encode
 from contfil.errors import ContfilError
-from contfil.explore.seeds import Seed, SwitcherRegistry
+from contfil.explore.observers import (
+    BranchDone,
+    Note,
+    Observer,
+    Observers,
+    PointAccepted,
+    SegmentEnded,
+    SegmentStarted,
+    StoreObserver,
+    SwitchDone,
+    Switching,
+)
+from contfil.explore.seeds import (
+    PendingProblem,
+    Seed,
+    SwitcherRegistry,
+    check_seed,
+    join_segments,
+    seed_record,
+)
+from contfil.explore.stop import SEGMENT_FAILURES, STOP, StopPolicy, StopReason, StopRequest
 from contfil.graph.branch_graph import BranchGraph
 from contfil.graph.identity import IdentityTolerance
-from contfil.store.run_store import RunStore, TaskRecords
+from contfil.store.run_store import RunStore, TaskRecords, task_name
 
 
 @dataclass
@@ -105,59 +130,6 @@ class ExplorerSettings:
     branch_kinds: tuple[str, ...] | None = None
 
 
-class Progress:
-    """One status line on a TTY (stderr): branch, parameter, points, events,
-    elapsed time. Silent when the stream is not a terminal."""
-
-    def __init__(self, stream: Any = None, enabled: bool | None = None,
-                 min_interval: float = 0.1) -> None:
-        import sys
-
-        self.stream = stream if stream is not None else sys.stderr
-        isatty = getattr(self.stream, "isatty", lambda: False)
-        self.enabled = bool(isatty()) if enabled is None else enabled
-        self.t0 = time.monotonic()
-        self._last = 0.0
-        self.min_interval = min_interval
-
-    def update(self, task: str, kind: str, param: str, p: float, n_points: int,
-               n_events: int, force: bool = False) -> None:
-        if not self.enabled:
-            return
-        now = time.monotonic()
-        if not force and now - self._last < self.min_interval:
-            return
-        self._last = now
-        el = now - self.t0
-        line = (f"{task} {kind:<14} {param}={p:<12.6g} points={n_points:<5d} "
-                f"events={n_events:<3d} {int(el // 60):02d}:{el % 60:05.2f}")
-        line = line[:120]
-        # Pad to the longest line so far: a shorter line must erase a longer one.
-        self._width = max(getattr(self, "_width", 0), len(line))
-        self.stream.write("\r" + line.ljust(self._width))
-        self.stream.flush()
-
-    def status(self, text: str) -> None:
-        """Replace the status line by ``text`` (e.g. while switching)."""
-        if not self.enabled:
-            return
-        el = time.monotonic() - self.t0
-        self._last = time.monotonic()
-        self._width = max(getattr(self, "_width", 0), len(text) + 10)
-        self.stream.write("\r" + f"{text} {int(el // 60):02d}:{el % 60:05.2f}".ljust(self._width))
-        self.stream.flush()
-
-    def message(self, text: str) -> None:
-        if self.enabled:
-            self.stream.write("\r" + " " * getattr(self, "_width", 80) + "\r" + text + "\n")
-            self.stream.flush()
-
-    def close(self) -> None:
-        if self.enabled:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
 @dataclass
 class _Task:
     seed: Seed
@@ -181,13 +153,17 @@ class Explorer:
     continuation_settings:
         Passed through to the continuer untouched.
     store:
-        Where to persist (``None``: in memory only).
+        A run store: what it holds is replayed (resume) and a
+        :class:`~contfil.explore.observers.StoreObserver` on it records the
+        run (``None``: in memory only).
+    observers:
+        Further observers of the events (e.g. a progress display).
     symmetries, tol:
         For the identity tests.
-    progress:
-        A :class:`Progress` (default: on when stderr is a TTY).
-    on_branch:
-        Optional callback ``f(graph, bid)`` after each finished branch.
+    meta:
+        Graph metadata (name, model, parameter, range).
+    stop:
+        The interrupt flag checked between points (default: the process's).
     """
 
     def __init__(
@@ -198,44 +174,54 @@ class Explorer:
         switchers: SwitcherRegistry | None = None,
         continuation_settings: Any = None,
         store: RunStore | None = None,
+        observers: Iterable[Observer] = (),
         symmetries: Any = None,
         tol: IdentityTolerance | None = None,
-        progress: Progress | None = None,
-        on_branch: Callable[[BranchGraph, str], None] | None = None,
         meta: dict[str, Any] | None = None,
+        stop: StopRequest | None = None,
     ) -> None:
         self.root = root
         self.continuer = continuer
         self.settings = settings or ExplorerSettings()
         self.switchers = switchers or SwitcherRegistry()
         self.cont_settings = continuation_settings
-        self.store = store
+        self.history = store
+        self.observers = Observers(observers)
+        if store is not None:
+            # The store first: a point is on disk before it is on screen.
+            self.observers.observers.insert(0, StoreObserver(store))
         self.graph = BranchGraph(symmetries=symmetries, tol=tol, meta=meta)
-        self.progress = progress or Progress()
-        self.on_branch = on_branch
-        self.problems: dict[str, Any] = {}  # branch id -> problem (for restarts)
+        self.policy = StopPolicy(self.settings, self.graph)
+        self.stop = stop if stop is not None else STOP
         self.n_computed_points = 0  # points computed now (not read back)
         self.n_tasks = 0
-        self._dedup_done: dict[int, bool] = {}
         self._resolved: dict[str, list[Seed]] = {}
 
     # ------------------------------------------------------------------ run
     def run(self) -> BranchGraph:
         """Explore and return the graph."""
+        try:
+            return self._run()
+        finally:
+            self.observers.close()
+
+    def _run(self) -> BranchGraph:
         s = self.settings
+        emit = self.observers.notify
         queue: deque[_Task] = deque([_Task(self.root, 0, None)])
         k = 0
         while queue:
-            if k >= s.max_branches:
-                self.progress.message(f"explorer: stopped at max_branches={s.max_branches}")
+            if not self.policy.more_tasks(k):
+                emit(Note(f"explorer: stopped at max_branches={s.max_branches}"))
                 break
             task = queue.popleft()
             branch, dup_of = self._branch_from_seed(k, task)
             k += 1
+            self.stop.check()  # an outcome reached while stopping is not recorded
             if dup_of is None and not branch.points:
                 # Nothing converged from this seed: keep a trace in the store only.
-                if self.store:
-                    self.store.set_task(f"T{k - 1:04d}", failed=branch.meta.get("end_reason"))
+                emit(BranchDone(k - 1, "failed", None, self.graph,
+                                str(branch.meta.get("end_reason", ""))))
                 continue
             if dup_of is not None:
                 bid, is_new = dup_of, False
@@ -244,10 +230,8 @@ class Explorer:
             if task.parent is not None:
                 self.graph.link(task.parent, bid)
             if not is_new:
-                if self.store:
-                    self.store.set_task(f"T{k - 1:04d}", duplicate_of=bid)
+                emit(BranchDone(k - 1, "duplicate", bid, self.graph))
                 continue
-            self.problems[bid] = task.seed.problem  # may be pending (resolve on use)
             branch.meta.setdefault("origin", task.seed.label or "root")
             branch.meta.setdefault("depth", task.depth)
             self.graph.update_branch(bid, branch)
@@ -264,19 +248,15 @@ class Explorer:
                     continue
                 if task.depth >= s.depth:
                     continue
-                self.progress.status(f"switching at {node['label']} ({sp.kind}, "
-                                     f"{branch.param}={sp.point.p:.6g}) ...")
-                seeds = self._switch(f"T{k - 1:04d}_{jsp}", sp, branch, task, node["label"])
+                emit(Switching(node["label"], sp.kind, branch.param, float(sp.point.p)))
+                seeds = self._switch(f"{task_name(k - 1)}_{jsp}", sp, branch, task,
+                                     node["label"])
                 self.graph.mark_switched(sid)
                 for sd in seeds:
                     queue.append(_Task(sd, task.depth + 1, sid))
-            if self.store:
-                self.store.save_graph(self.graph)
-                self.store.set_task(f"T{k - 1:04d}", branch=bid)
-            if self.on_branch:
-                self.on_branch(self.graph, bid)
+            self.stop.check()
+            emit(BranchDone(k - 1, "new", bid, self.graph))
         self.n_tasks = k
-        self.progress.close()
         return self.graph
 
     # ------------------------------------------------------------ switching
@@ -284,19 +264,20 @@ class Explorer:
                 label: str) -> list[Seed]:
         """Seeds leaving ``sp``; recorded in the store, so that a resumed run
         does not redo a (possibly costly) switch unless it needs the new
-        problems themselves (see :class:`_PendingProblem`)."""
-        rec = self.store.load_switch(key) if self.store else None
+        problems themselves (see :class:`PendingProblem`)."""
+        rec = self.history.load_switch(key) if self.history else None
         if rec is not None:
             sp.data.update(decode(rec.get("sp_data", {})))
             return [self._pending_seed(key, i, d, sp, branch, task)
                     for i, d in enumerate(rec["seeds"])]
         seeds = self._compute_switch(sp, branch, task, label)
-        if self.store:
-            self.store.save_switch(key, {
-                "seeds": [_seed_record(sd) for sd in seeds],
-                "sp_data": encode({k: sp.data[k] for k in ("not_followed", "switch_error")
-                                   if k in sp.data}),
-            })
+        # A switch cut short by an interrupt may have returned nothing: not a result.
+        self.stop.check()
+        self.observers.notify(SwitchDone(key, {
+            "seeds": [seed_record(sd) for sd in seeds],
+            "sp_data": encode({k: sp.data[k] for k in ("not_followed", "switch_error")
+                               if k in sp.data}),
+        }))
         return seeds
 
     def _compute_switch(self, sp: SpecialPoint, branch: Branch, task: _Task,
@@ -326,7 +307,7 @@ class Explorer:
             return seeds[i].problem
 
         return Seed(
-            problem=_PendingProblem(d["kind"], d["param"], int(d["n"]), resolve),
+            problem=PendingProblem(d["kind"], d["param"], int(d["n"]), resolve),
             x0=np.asarray(d["x0"], dtype=float), p0=float(d["p0"]),
             direction=int(d["direction"]),
             tangent=None if d["tangent"] is None else np.asarray(d["tangent"], dtype=float),
@@ -334,7 +315,7 @@ class Explorer:
 
     def _problem(self, seed: Seed) -> Any:
         """The seed's problem, computing a pending one now (see :meth:`_switch`)."""
-        if isinstance(seed.problem, _PendingProblem):
+        if isinstance(seed.problem, PendingProblem):
             seed.problem = seed.problem.resolve()
         return seed.problem
 
@@ -347,169 +328,76 @@ class Explorer:
             both = False  # the root goes where the spec says
         # Senses relative to the seed's own (+1: as the seed says, -1: the other way).
         dirs = [1, -1] if both else [1]
-        segments: list[tuple[list[Point], list[SpecialPoint], str]] = []
+        segments: list[tuple[list[Point], list[SpecialPoint], StopReason]] = []
         dup: str | None = None
         for d in dirs:
             pts, sps, reason = self._segment(k, d, seed, task, check_dup=not segments)
             segments.append((pts, sps, reason))
-            if reason.startswith("duplicate:"):
-                dup = reason.split(":", 1)[1]
+            if reason.duplicate_of is not None:
+                dup = reason.duplicate_of
                 break
-        branch = _join(seed, segments, self._param_name(seed))
+        branch = join_segments(seed, segments, self._param_name(seed))
         return branch, dup
 
     def _param_name(self, seed: Seed) -> str:
         return str(getattr(seed.problem, "param", self.graph.meta.get("param", "p")))
 
-    def _stop_reason(
-        self, points: list[Point], seed: Seed, task: _Task, check_dup: bool
-    ) -> str | None:
-        """Why the segment must end after ``points`` (``None``: go on).
-
-        Called after every point *and* on resume, so a run killed between
-        storing a last point and its end record ends the same way.
-        """
-        s = self.settings
-        if not points:
-            return None
-        lo, hi = s.p_range
-        if not lo <= points[-1].p <= hi:
-            return "range"
-        if len(points) >= s.max_points:
-            return "max_points"
-        if check_dup and task.parent is not None and len(points) >= s.dedup_after:
-            # Test once, at exactly dedup_after points (the same on resume).
-            partial = Branch(kind=seed.kind, param=self._param_name(seed),
-                             points=list(points[: s.dedup_after]))
-            if len(points) == s.dedup_after or not self._dedup_done.get(id(task)):
-                self._dedup_done[id(task)] = True
-                found = self.graph.find_branch(partial)
-                if found is not None:
-                    return f"duplicate:{found}"
-        return None
-
     def _segment(
         self, k: int, direction: int, seed: Seed, task: _Task, check_dup: bool
-    ) -> tuple[list[Point], list[SpecialPoint], str]:
-        name = f"T{k:04d}{'+' if direction > 0 else '-'}"
-        log = self.store.task(k, direction) if self.store else None
+    ) -> tuple[list[Point], list[SpecialPoint], StopReason]:
+        name = task_name(k, direction)
+        kind, param = seed.kind, self._param_name(seed)
         resume: TaskRecords | None = None
         points: list[Point] = []
         specials: list[SpecialPoint] = []
-        if log is not None:
-            recs = log.open()
-            if recs.header is not None:
-                _check_seed(name, recs.header, seed, direction)
-                points, specials = list(recs.points), list(recs.specials)
-                if recs.finished:
-                    log.close()
-                    return points, specials, str(recs.end)
-                resume = recs if recs.points else None
-            else:
-                log.header(seed.fingerprint(), direction)
-        reason = self._stop_reason(points, seed, task, check_dup)
+        recs = self.history.read_task(k, direction) if self.history else None
+        if recs is not None and recs.header is not None:
+            check_seed(name, recs.header, seed, direction)
+            points, specials = list(recs.points), list(recs.specials)
+            if recs.finished:
+                return points, specials, StopReason.parse(str(recs.end))
+            resume = recs if recs.points else None
+
+        def stop_after() -> StopReason | None:
+            return self.policy.after(points, kind, param, id(task),
+                                     task.parent is not None, check_dup)
+
+        reason = stop_after()
         if reason is None:
-            # Outside the try: a resume that cannot rebuild the seed's problem
-            # consistently must stop the run, not end this branch quietly.
+            # A resume that cannot rebuild the seed's problem consistently
+            # must stop the run, not end this branch quietly.
             self._problem(seed)
-        try:
-            if reason is None:
-                steps = self.continuer(seed, direction, self.cont_settings, resume)
-                for step in steps:
-                    pt = step.point
-                    points.append(pt)
-                    specials.extend(step.specials)
-                    self.n_computed_points += 1
-                    if log is not None:
-                        log.point(pt, step.x, step.state, step.specials)
-                    self.progress.update(name, seed.kind, self._param_name(seed), pt.p,
-                                         len(points), len(specials))
-                    reason = self._stop_reason(points, seed, task, check_dup)
-                    if reason is not None:
-                        break
-                else:
-                    reason = str(getattr(steps, "end_reason", "") or "stopped")
-        except (ContfilError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
-            # A failed step ends the segment, it does not lose the branch (or
-            # the study); the reason is kept with the branch.
-            reason = f"error: {type(exc).__name__}: {' '.join(str(exc).split())[:300]}"
-            self.progress.message(f"{name}: {reason}")
-        if log is not None:
-            log.end(reason)
-            log.close()
+        self.stop.check()
+        emit = self.observers.notify
+        lo_hi = (float(self.settings.p_range[0]), float(self.settings.p_range[1]))
+        emit(SegmentStarted(k, direction, kind, param, seed.fingerprint(), len(points),
+                            lo_hi, self.settings.max_points,
+                            float(points[-1].p) if points else float(seed.p0)))
+        if reason is None:
+            steps = self.continuer(seed, direction, self.cont_settings, resume)
+            it = iter(steps)
+            while reason is None:
+                try:
+                    step = next(it)
+                except StopIteration:
+                    reason = StopReason(str(getattr(steps, "end_reason", "") or "stopped"))
+                    break
+                except SEGMENT_FAILURES as exc:
+                    # A failed step ends the segment, not the branch or the
+                    # study; unless an interrupt caused it (then it is no result).
+                    self.stop.check()
+                    reason = StopReason.failure(exc)
+                    emit(Note(f"{name}: {reason.text()}"))
+                    break
+                # A point computed while a stop was requested may have been
+                # disturbed by the interrupt (inside compiled code): not stored.
+                self.stop.check()
+                points.append(step.point)
+                specials.extend(step.specials)
+                self.n_computed_points += 1
+                emit(PointAccepted(k, direction, step.point, step.x, len(points),
+                                   list(step.specials), dict(step.state)))
+                reason = stop_after()
+        self.stop.check()
+        emit(SegmentEnded(k, direction, reason, len(points)))
         return points, specials, reason
-
-
-class _PendingProblem:
-    """Stands for the problem of a seed read back from a switch record.
-
-    Carries what the explorer reads without solving anything (``kind``,
-    ``param``, ``n``); :meth:`resolve` recomputes the switch when the problem
-    itself is needed (to continue an unfinished branch or switch further).
-    """
-
-    def __init__(self, kind: str, param: str, n: int, resolver: Callable[[], Any]) -> None:
-        self.kind = kind
-        self.param = param
-        self.n = n
-        self._resolver = resolver
-
-    def resolve(self) -> Any:
-        return self._resolver()
-
-
-def _seed_record(sd: Seed) -> dict[str, Any]:
-    return {
-        "kind": sd.kind,
-        "param": str(getattr(sd.problem, "param", "p")),
-        "n": int(getattr(sd.problem, "n", np.asarray(sd.x0).size)),
-        "x0": np.asarray(sd.x0, dtype=float).tolist(),
-        "p0": float(sd.p0),
-        "direction": int(sd.direction),
-        "tangent": None if sd.tangent is None else np.asarray(sd.tangent, float).tolist(),
-        "both_directions": sd.both_directions,
-        "label": sd.label,
-        "info": encode(sd.info),
-    }
-
-
-def _check_seed(name: str, header: dict[str, Any], seed: Seed, direction: int) -> None:
-    old = header.get("seed", {})
-    new = seed.fingerprint()
-    same = old.get("kind") == new["kind"] and header.get("direction") == direction
-    for key in ("p0", "x0_norm", "x0_sum"):
-        a, b = float(old.get(key, np.nan)), new[key]
-        same = same and abs(a - b) <= 1e-9 * (1.0 + abs(a))
-    if not same:
-        raise ContfilError(
-            f"resume: task {name} was started from a different seed ({old}) than now ({new}); "
-            "the model or code changed since the run was started"
-        )
-
-
-def _join(seed: Seed, segments: list[tuple[list[Point], list[SpecialPoint], str]],
-          param: str) -> Branch:
-    """One branch from the segments of a seed (second one reversed in front)."""
-    kind = seed.kind
-    first_pts, first_sps, first_reason = segments[0]
-    meta: dict[str, Any] = {"end_reason": first_reason, "seed": seed.label or "root"}
-    if len(segments) == 1:
-        return Branch(kind=kind, param=param, points=list(first_pts),
-                      special_points=list(first_sps), meta=meta)
-    back_pts, back_sps, back_reason = segments[1]
-    # Both segments start at the corrected seed: drop one copy.
-    shared = bool(back_pts and first_pts and
-                  np.allclose(back_pts[0].u, first_pts[0].u, atol=1e-10, rtol=1e-8)
-                  and abs(back_pts[0].p - first_pts[0].p) <= 1e-12 * (1 + abs(first_pts[0].p)))
-    rev = list(reversed(back_pts))
-    nb = len(rev)
-    points = rev + (first_pts[1:] if shared else first_pts)
-    offset = nb - 1 if shared else nb
-    sps = []
-    for sp in back_sps:
-        sps.append(SpecialPoint(sp.kind, sp.point, max(0, nb - 2 - sp.index), sp.data))
-    for sp in first_sps:
-        sps.append(SpecialPoint(sp.kind, sp.point, sp.index + offset, sp.data))
-    sps.sort(key=lambda s: s.index)
-    meta["end_reason"] = f"{back_reason} | {first_reason}"
-    return Branch(kind=kind, param=param, points=points, special_points=sps, meta=meta)

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.engine.branch import Branch, SpecialPoint
+from contfil.engine.branch import Branch, Point, SpecialPoint, encode
 from contfil.errors import ContfilError
 
 Array = NDArray[np.float64]
@@ -136,3 +136,78 @@ class SwitcherRegistry:
         if fn is None:
             return []
         return [as_seed(s) for s in fn(sp, branch, problem)]
+
+
+class PendingProblem:
+    """Stands for the problem of a seed read back from a switch record.
+
+    Carries what the explorer reads without solving anything (``kind``,
+    ``param``, ``n``); :meth:`resolve` recomputes the switch when the problem
+    itself is needed (to continue an unfinished branch or switch further).
+    """
+
+    def __init__(self, kind: str, param: str, n: int, resolver: Callable[[], Any]) -> None:
+        self.kind = kind
+        self.param = param
+        self.n = n
+        self._resolver = resolver
+
+    def resolve(self) -> Any:
+        return self._resolver()
+
+
+def seed_record(sd: Seed) -> dict[str, Any]:
+    return {
+        "kind": sd.kind,
+        "param": str(getattr(sd.problem, "param", "p")),
+        "n": int(getattr(sd.problem, "n", np.asarray(sd.x0).size)),
+        "x0": np.asarray(sd.x0, dtype=float).tolist(),
+        "p0": float(sd.p0),
+        "direction": int(sd.direction),
+        "tangent": None if sd.tangent is None else np.asarray(sd.tangent, float).tolist(),
+        "both_directions": sd.both_directions,
+        "label": sd.label,
+        "info": encode(sd.info),
+    }
+
+
+def check_seed(name: str, header: dict[str, Any], seed: Seed, direction: int) -> None:
+    old = header.get("seed", {})
+    new = seed.fingerprint()
+    same = old.get("kind") == new["kind"] and header.get("direction") == direction
+    for key in ("p0", "x0_norm", "x0_sum"):
+        a, b = float(old.get(key, np.nan)), new[key]
+        same = same and abs(a - b) <= 1e-9 * (1.0 + abs(a))
+    if not same:
+        raise ContfilError(
+            f"resume: task {name} was started from a different seed ({old}) than now ({new}); "
+            "the model or code changed since the run was started"
+        )
+
+
+def join_segments(seed: Seed, segments: list[tuple[list[Point], list[SpecialPoint], Any]],
+          param: str) -> Branch:
+    """One branch from the segments of a seed (second one reversed in front)."""
+    kind = seed.kind
+    first_pts, first_sps, first_reason = segments[0]
+    meta: dict[str, Any] = {"end_reason": first_reason.text(), "seed": seed.label or "root"}
+    if len(segments) == 1:
+        return Branch(kind=kind, param=param, points=list(first_pts),
+                      special_points=list(first_sps), meta=meta)
+    back_pts, back_sps, back_reason = segments[1]
+    # Both segments start at the corrected seed: drop one copy.
+    shared = bool(back_pts and first_pts and
+                  np.allclose(back_pts[0].u, first_pts[0].u, atol=1e-10, rtol=1e-8)
+                  and abs(back_pts[0].p - first_pts[0].p) <= 1e-12 * (1 + abs(first_pts[0].p)))
+    rev = list(reversed(back_pts))
+    nb = len(rev)
+    points = rev + (first_pts[1:] if shared else first_pts)
+    offset = nb - 1 if shared else nb
+    sps = []
+    for sp in back_sps:
+        sps.append(SpecialPoint(sp.kind, sp.point, max(0, nb - 2 - sp.index), sp.data))
+    for sp in first_sps:
+        sps.append(SpecialPoint(sp.kind, sp.point, sp.index + offset, sp.data))
+    sps.sort(key=lambda s: s.index)
+    meta["end_reason"] = f"{back_reason.text()} | {first_reason.text()}"
+    return Branch(kind=kind, param=param, points=points, special_points=sps, meta=meta)

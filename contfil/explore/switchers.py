@@ -15,6 +15,14 @@ import numpy as np
 from contfil.errors import ContfilError
 from contfil.explore.seeds import Seed, SwitcherRegistry
 
+#: A switch that fails with one of these yields no seeds (the reason is kept
+#: on the special point) instead of stopping the study: a contfil error (no
+#: convergence, a degenerate eigenspace, a missing vector), or numpy's
+#: singular-matrix and floating-point errors. Anything else is a bug and
+#: stops the run with one line.
+SWITCH_FAILURES: tuple[type[BaseException], ...] = (ContfilError, np.linalg.LinAlgError,
+                                                    ArithmeticError)
+
 #: Samples per period for the period-mean observables of cycle branches.
 PERIOD_MEANS = 8
 
@@ -93,7 +101,7 @@ def default_switchers(standing_subspace: str | None = "auto",
                     out.append(one_way(cs.rotating_wave_from_double_hopf(
                         model, problem.param, sp, params=params_of(problem, sp.point.p)),
                         "rotating wave"))
-            except (ContfilError, ValueError, ArithmeticError) as exc:
+            except SWITCH_FAILURES as exc:
                 errors.append(f"rotating wave: {type(exc).__name__}: {exc}")
             if not wanted("periodic_orbit", "relative_periodic_orbit"):
                 sp.data["not_followed"] = ["standing wave (periodic orbit)"]
@@ -106,7 +114,7 @@ def default_switchers(standing_subspace: str | None = "auto",
                 out.append(one_way(cs.standing_wave_from_double_hopf(
                     model, problem.param, sp, params=params_of(problem, sp.point.p),
                     subspace=sub, **cycle_kw(model)), "standing wave"))
-            except (ContfilError, ValueError, ArithmeticError) as exc:
+            except SWITCH_FAILURES as exc:
                 errors.append(f"standing wave: {type(exc).__name__}: {exc}")
             if errors:
                 sp.data["switch_error"] = " | ".join(" ".join(e.split())[:300] for e in errors)
@@ -152,7 +160,7 @@ def _wrap(fn: Any) -> Any:
     def switcher(sp: Any, branch: Any, problem: Any) -> list[Any]:
         try:
             out = fn(sp, branch, problem)
-        except (ContfilError, ValueError, ArithmeticError, np.linalg.LinAlgError) as exc:
+        except SWITCH_FAILURES as exc:
             # Recorded on the special point (exported with the graph).
             sp.data["switch_error"] = f"{type(exc).__name__}: " + " ".join(str(exc).split())[:300]
             return []

@@ -1,8 +1,11 @@
 """Crash-safe file primitives: atomic replace and checked append-only records.
 
-- :func:`atomic_write_bytes` writes a temporary file in the same directory,
+- :func:`atomic_write` (the one primitive; ``atomic_write_bytes/text/json``
+  are thin forms of it) writes a temporary file in the same directory,
   fsyncs it, ``os.replace``-s it over the target and fsyncs the directory:
-  a reader sees either the old or the new file, never a mixture.
+  a reader sees either the old or the new file, never a mixture. The
+  temporary's name carries the writer's pid, so a clean-up removes only the
+  temporaries of dead processes (:func:`remove_orphan_temps`).
 - :class:`RecordLog` is an append-only JSON-lines file whose every record is
   ``<crc32 hex> <length> <json>\\n``. A record is valid only if it is
   newline-terminated, its length and checksum match; :meth:`RecordLog.read`
@@ -17,8 +20,9 @@ import json
 import os
 import tempfile
 import zlib
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 
 def fsync_dir(path: str | Path) -> None:
@@ -41,16 +45,63 @@ def _umask() -> int:
     return mask
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
-    """Replace ``path`` by ``data`` atomically and durably; returns the path."""
+def temp_prefix(path: Path) -> str:
+    """Prefix of the temporaries of an atomic write of ``path``: hidden, and
+    tagged with the writer's pid so a clean-up can tell whose they are."""
+    return f".{path.name}.{os.getpid()}."
+
+
+def temp_owner(tmp: Path) -> int | None:
+    """The pid that made a temporary of :func:`atomic_write` (``None``: not one)."""
+    parts = tmp.name.split(".")
+    # ".<name>.<pid>.<random>.tmp": the pid is the third field from the end.
+    if len(parts) < 5 or parts[0] != "" or parts[-1] != "tmp" or not parts[-3].isdigit():
+        return None
+    return int(parts[-3])
+
+
+def pid_alive(pid: int) -> bool:
+    """Whether a process ``pid`` exists on this machine."""
+    if pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # exists, owned by someone else
+    return True
+
+
+def remove_orphan_temps(directory: Path) -> list[Path]:
+    """Delete temporaries of atomic writes in ``directory`` (and one level
+    below) whose writer process is gone; a live writer's are left alone."""
+    removed = []
+    for tmp in list(directory.glob(".*.tmp")) + list(directory.glob("*/.*.tmp")):
+        pid = temp_owner(tmp)
+        if pid is not None and pid != os.getpid() and pid_alive(pid):
+            continue
+        tmp.unlink(missing_ok=True)
+        removed.append(tmp)
+    return removed
+
+
+def atomic_write(path: str | Path, writer: Callable[[BinaryIO], object]) -> Path:
+    """Replace ``path`` atomically and durably by what ``writer(fh)`` writes.
+
+    ``writer`` gets a binary file object of a temporary in the same
+    directory; the temporary is fsynced, ``os.replace``-d over ``path`` and
+    the directory fsynced. A reader sees the old or the new file, never a
+    mixture; on any error (or interrupt) the temporary is removed.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path), suffix=".tmp", dir=path.parent)
     try:
         # mkstemp makes 0600 files; give the usual permissions (0666 & ~umask).
         os.fchmod(fd, 0o666 & ~_umask())
         with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+            writer(fh)
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
@@ -62,6 +113,11 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
         raise
     fsync_dir(path.parent)
     return path
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+    """Replace ``path`` by ``data`` atomically and durably; returns the path."""
+    return atomic_write(path, lambda fh: fh.write(data))
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:

@@ -29,116 +29,33 @@ from __future__ import annotations
 
 import json
 import os
-import signal
+import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from contfil.engine.branch import Point, SpecialPoint
 from contfil.errors import ContfilError
-from contfil.store.atomic import RecordLog, atomic_write_json, atomic_write_text, encode_record
+from contfil.store.atomic import (
+    RecordLog,
+    atomic_write_json,
+    atomic_write_text,
+    fsync_dir,
+    pid_alive,
+    remove_orphan_temps,
+)
+from contfil.store.lock import RunLock, is_locked
+from contfil.store.task_log import TaskLog, TaskRecords, parse_task_records, task_name
+
+__all__ = ["FORMAT", "RunStore", "TaskLog", "TaskRecords", "load_run_graph",
+           "parse_task_records", "run_state", "save_graph_graphml", "save_graph_json",
+           "task_name", "task_summaries"]
 
 FORMAT = "contfil-run/1"
 
-# Fault injection for the crash tests: after this many points stored by the
-# process, SIGKILL it (optionally in the middle of writing the next record).
-_CRASH_AFTER = os.environ.get("CONTFIL_TEST_CRASH_AFTER")
-_CRASH_TORN = bool(os.environ.get("CONTFIL_TEST_CRASH_TORN"))
-_stored = 0
-
-
-def _maybe_crash(log: RecordLog, record: bytes) -> None:
-    global _stored
-    _stored += 1
-    if _CRASH_AFTER is None or _stored <= int(_CRASH_AFTER):
-        return
-    if _CRASH_TORN and log._fh is not None:
-        log._fh.write(record[: len(record) // 2])
-        log._fh.flush()
-        os.fsync(log._fh.fileno())
-    os.kill(os.getpid(), signal.SIGKILL)
-
-
-@dataclass
-class TaskRecords:
-    """What a task log holds: header, accepted points (with problem unknowns
-    ``x``), special points and the end reason (``None`` while unfinished)."""
-
-    header: dict[str, Any] | None = None
-    points: list[Point] = field(default_factory=list)
-    xs: list[np.ndarray] = field(default_factory=list)
-    specials: list[SpecialPoint] = field(default_factory=list)
-    end: str | None = None
-    state: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def finished(self) -> bool:
-        return self.end is not None
-
-
-def parse_task_records(records: list[dict[str, Any]]) -> TaskRecords:
-    """Turn raw log records into :class:`TaskRecords` (validating order)."""
-    out = TaskRecords()
-    for r in records:
-        t = r.get("t")
-        if t == "header":
-            out.header = r
-        elif t == "point":
-            if r["i"] != len(out.points):
-                raise ContfilError(
-                    f"task log out of order: point record {r['i']} after {len(out.points)}"
-                )
-            out.points.append(Point.from_dict(r["point"]))
-            out.xs.append(np.asarray(r["x"], dtype=float))
-            out.state = r.get("state") or {}
-            # Special points found on the way to this point live in the same
-            # record: a step is stored whole or not at all.
-            out.specials.extend(SpecialPoint.from_dict(d) for d in r.get("specials", ()))
-        elif t == "end":
-            out.end = str(r["reason"])
-    return out
-
-
-class TaskLog:
-    """The record log of one continuation task."""
-
-    def __init__(self, path: Path, fsync: bool = True) -> None:
-        self.path = path
-        self.log = RecordLog(path, fsync=fsync)
-        self.n_points = 0
-
-    def open(self) -> TaskRecords:
-        """Open for appending (dropping a torn tail); returns what is stored."""
-        recs = parse_task_records(self.log.open_append())
-        self.n_points = len(recs.points)
-        return recs
-
-    def header(self, seed: dict[str, Any], direction: int) -> None:
-        self.log.append({"t": "header", "seed": seed, "direction": int(direction)})
-
-    def point(self, pt: Point, x: np.ndarray, state: dict[str, Any] | None = None,
-              specials: list[SpecialPoint] | None = None) -> None:
-        """Store one accepted step: the point, its unknowns ``x``, the special
-        points localised since the previous point, optional iterator state."""
-        rec: dict[str, Any] = {"t": "point", "i": self.n_points, "point": pt.to_dict(),
-                               "x": np.asarray(x, dtype=float).tolist()}
-        if specials:
-            rec["specials"] = [sp.to_dict() for sp in specials]
-        if state:
-            rec["state"] = state
-        if _CRASH_AFTER is not None:
-            _maybe_crash(self.log, encode_record(rec))
-        self.log.append(rec)
-        self.n_points += 1
-
-    def end(self, reason: str) -> None:
-        self.log.append({"t": "end", "reason": reason})
-
-    def close(self) -> None:
-        self.log.close()
+# Why a run directory is created in a hidden sibling and renamed into place:
+# a kill at any moment of the creation leaves either nothing under the
+# run's name or a complete, resumable run (run.json, spec.toml, tasks/).
+_NEW_SUFFIX = ".new"
 
 
 class RunStore:
@@ -153,8 +70,10 @@ class RunStore:
     spec_text:
         The spec file text, copied to ``spec.toml``.
     resume:
-        Carry on an existing run. Without it an existing non-empty run
-        directory is an error (nothing is ever overwritten silently).
+        Carry on an existing run (a missing or empty ``root`` is created, as
+        a kill before the run directory appeared leaves it). Without it an
+        existing non-empty run directory is an error (nothing is ever
+        overwritten silently).
     fsync:
         fsync each record (default; turn off only for throw-away tests).
     """
@@ -170,31 +89,59 @@ class RunStore:
         self.root = Path(root)
         self.fsync = fsync
         self.manifest_path = self.root / "run.json"
-        if resume:
-            if not self.manifest_path.exists():
-                raise ContfilError(f"--resume: {self.root} is not a run directory (no run.json)")
+        self.lock: RunLock | None = None
+        # A resume of a run killed before its directory was renamed into
+        # place (so: missing or empty) has nothing to read back: it starts it.
+        self.created = not resume or not self.root.exists() or (
+            self.root.is_dir() and not any(self.root.iterdir()))
+        if self.created:
+            self._create(spec, spec_text)
+        else:
+            self._open_existing(spec)
+
+    def _open_existing(self, spec: dict[str, Any] | None) -> None:
+        if not self.manifest_path.exists():
+            raise ContfilError(
+                f"--resume: {self.root} is not a run directory (no run.json); a directory "
+                "left by a run that an older contfil was starting holds nothing to resume: "
+                "delete it, or choose another --out")
+        # The lock first: nothing is read or cleaned while another process writes.
+        self.lock = RunLock(self.root).acquire()
+        try:
             self.manifest = self.read_manifest(self.root)
-            if spec is not None and _strip_output(self.manifest.get("spec", {})) != _strip_output(
-                _json_roundtrip(spec)
-            ):
+            if spec is not None and _strip_output(self.manifest.get("spec", {})) != (
+                    _strip_output(_json_roundtrip(spec))):
                 raise ContfilError(
                     f"--resume: the spec differs from the one {self.root} was started with "
                     f"(see {self.root / 'spec.toml'}); resume with that spec or start a new run"
                 )
             self.manifest["status"] = "running"
             self.manifest["resumed"] = int(self.manifest.get("resumed", 0)) + 1
-            # Temporaries of atomic writes cut short by the interruption.
-            for tmp in list(self.root.glob(".*.tmp")) + list(self.root.glob("*/.*.tmp")):
-                tmp.unlink(missing_ok=True)
-        else:
-            if self.root.exists() and any(self.root.iterdir()):
-                raise ContfilError(
-                    f"run directory {self.root} exists and is not empty; "
-                    "use --resume to carry on or choose another --out"
-                )
-            self.root.mkdir(parents=True, exist_ok=True)
-            from contfil import __version__
+            # Temporaries of atomic writes cut short by the interruption (only
+            # those of dead processes: an `export` may be writing right now).
+            remove_orphan_temps(self.root)
+            (self.root / "tasks").mkdir(exist_ok=True)
+            self.write_manifest()
+        except BaseException:
+            self.close()
+            raise
 
+    def _create(self, spec: dict[str, Any] | None, spec_text: str | None) -> None:
+        if self.root.exists() and (not self.root.is_dir() or any(self.root.iterdir())):
+            raise ContfilError(
+                f"run directory {self.root} exists and is not empty; "
+                "use --resume to carry on or choose another --out"
+            )
+        from contfil import __version__
+
+        parent = self.root.parent
+        parent.mkdir(parents=True, exist_ok=True)
+        _remove_dead_creations(parent)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{self.root.name}.{os.getpid()}.",
+                                    suffix=_NEW_SUFFIX, dir=parent))
+        try:
+            os.chmod(tmp, 0o777 & ~_umask())
+            self.lock = RunLock(tmp).acquire()
             self.manifest = {
                 "format": FORMAT,
                 "contfil_version": __version__,
@@ -204,9 +151,38 @@ class RunStore:
                 "tasks": {},
             }
             if spec_text is not None:
-                atomic_write_text(self.root / "spec.toml", spec_text)
-        (self.root / "tasks").mkdir(exist_ok=True)
-        self.write_manifest()
+                atomic_write_text(tmp / "spec.toml", spec_text)
+            (tmp / "tasks").mkdir()
+            self.manifest["updated"] = self.manifest["created"]
+            atomic_write_json(tmp / "run.json", self.manifest)
+            # rename(2) also replaces an *empty* directory of the same name.
+            os.rename(tmp, self.root)
+        except OSError as exc:
+            self.close()
+            _rmtree(tmp)
+            if self.root.exists() and any(self.root.iterdir()):
+                raise ContfilError(
+                    f"run directory {self.root} exists and is not empty; "
+                    "use --resume to carry on or choose another --out") from None
+            raise exc
+        except BaseException:
+            self.close()
+            _rmtree(tmp)
+            raise
+        fsync_dir(parent)
+        self.lock.root = self.root
+
+    def close(self) -> None:
+        """Release the run directory's lock (the process's exit does too)."""
+        if self.lock is not None:
+            self.lock.release()
+            self.lock = None
+
+    def __enter__(self) -> RunStore:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     @staticmethod
     def read_manifest(root: str | Path) -> dict[str, Any]:
@@ -214,9 +190,10 @@ class RunStore:
         try:
             with open(path, encoding="utf-8") as fh:
                 m = json.load(fh)
-        except (OSError, json.JSONDecodeError) as exc:
+        except (OSError, ValueError) as exc:  # ValueError: bad JSON or not UTF-8
             raise ContfilError(f"cannot read run manifest {path}: {exc}") from None
-        if m.get("format") != FORMAT:
+        if not isinstance(m, dict) or m.get("format") != FORMAT:
+            m = m if isinstance(m, dict) else {}
             raise ContfilError(f"{path}: unknown run format {m.get('format')!r}, expected {FORMAT}")
         return m
 
@@ -225,10 +202,19 @@ class RunStore:
         atomic_write_json(self.manifest_path, self.manifest)
 
     def task_path(self, k: int, direction: int) -> Path:
-        return self.root / "tasks" / f"T{k:04d}{'+' if direction > 0 else '-'}.jsonl"
+        return self.root / "tasks" / f"{task_name(k, direction)}.jsonl"
 
     def task(self, k: int, direction: int) -> TaskLog:
         return TaskLog(self.task_path(k, direction), fsync=self.fsync)
+
+    def read_task(self, k: int, direction: int) -> TaskRecords:
+        """What the log of segment ``(k, direction)`` holds (read only; a
+        torn tail is ignored here and dropped when the log is reopened)."""
+        path = self.task_path(k, direction)
+        try:
+            return parse_task_records(RecordLog(path).read()[0])
+        except ContfilError as exc:
+            raise ContfilError(f"{path}: {exc}") from None
 
     def set_task(self, name: str, **info: Any) -> None:
         self.manifest.setdefault("tasks", {}).setdefault(name, {}).update(info)
@@ -244,12 +230,17 @@ class RunStore:
         atomic_write_json(self.root / "switches" / f"{key}.json", record)
 
     def load_switch(self, key: str) -> dict[str, Any] | None:
-        """A stored switch record, or ``None``."""
+        """A stored switch record, or ``None`` (also for a damaged one: the
+        switch is deterministic, so it is recomputed and stored again)."""
         path = self.root / "switches" / f"{key}.json"
-        if not path.exists():
+        try:
+            with open(path, encoding="utf-8") as fh:
+                rec = json.load(fh)
+        except (OSError, ValueError):
             return None
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
+        ok = isinstance(rec, dict) and isinstance(rec.get("seeds"), list) and all(
+            isinstance(d, dict) and _SEED_KEYS <= set(d) for d in rec["seeds"])
+        return rec if ok else None
 
     @property
     def graph_path(self) -> Path:
@@ -269,6 +260,31 @@ def save_graph_graphml(graph: Any, path: str | Path) -> Path:
     return atomic_write_text(path, graph.to_graphml_text())
 
 
+_SEED_KEYS = {"kind", "param", "n", "x0", "p0", "direction", "tangent", "both_directions",
+              "label"}
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _rmtree(path: Path) -> None:
+    import shutil
+
+    shutil.rmtree(path, ignore_errors=True)
+
+
+def _remove_dead_creations(parent: Path) -> None:
+    """Remove run directories half-made by processes killed while creating
+    them (hidden ``.<name>.<pid>.*.new`` siblings whose pid is gone)."""
+    for d in parent.glob(f".*{_NEW_SUFFIX}"):
+        parts = d.name.split(".")
+        if len(parts) >= 4 and parts[2].isdigit() and not pid_alive(int(parts[2])):
+            _rmtree(d)
+
+
 def _json_roundtrip(obj: Any) -> Any:
     return json.loads(json.dumps(obj, allow_nan=True))
 
@@ -278,26 +294,72 @@ def _strip_output(spec: dict[str, Any]) -> dict[str, Any]:
     return {k: v for k, v in spec.items() if k != "output"}
 
 
+def run_state(run: str | Path) -> str:
+    """``"running"`` (a live process holds the run's lock), ``"finished"``
+    (the manifest says complete) or ``"interrupted"``."""
+    run = Path(run)
+    if is_locked(run):
+        return "running"
+    try:
+        status = RunStore.read_manifest(run).get("status")
+    except ContfilError:
+        return "interrupted"
+    return "finished" if status == "complete" else "interrupted"
+
+
+def _has_task_logs(run: Path) -> bool:
+    try:
+        return any((run / "tasks").glob("T*.jsonl"))
+    except OSError:
+        return False
+
+
 def load_run_graph(run: str | Path) -> Any:
     """The :class:`~contfil.graph.branch_graph.BranchGraph` of a run directory
-    (or a ``graph.json`` / ``.graphml`` file)."""
+    (or a ``graph.json`` / ``.graphml`` file); a missing or unreadable graph
+    is one :class:`ContfilError` that says what to do."""
+    import networkx as nx
+
     from contfil.graph.branch_graph import BranchGraph
 
     path = Path(run)
-    if path.is_dir():
+    run_dir = path if path.is_dir() else None
+    if run_dir is not None:
         path = path / "graph.json"
     if not path.exists():
+        if run_dir is not None and _has_task_logs(run_dir):
+            raise ContfilError(
+                f"no graph.json in {run_dir}, but its task logs are there: "
+                f"`contfil run {run_dir / 'spec.toml'} --out {run_dir} --resume` rebuilds it "
+                "from them (finished tasks are read back, not recomputed)")
         raise ContfilError(f"no graph at {path}: is this a run directory of `contfil run`?")
-    if path.suffix == ".graphml":
-        return BranchGraph.load_graphml(path)
-    return BranchGraph.load_json(path)
+    try:
+        if path.suffix == ".graphml":
+            return BranchGraph.load_graphml(path)
+        return BranchGraph.load_json(path)
+    except ContfilError as exc:
+        raise ContfilError(f"{path} is not a contfil graph: {exc}") from None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, IndexError,
+            SyntaxError, nx.NetworkXError) as exc:
+        # ValueError: bad JSON, text that is not UTF-8; SyntaxError: bad XML
+        # (xml.etree's ParseError) in a .graphml file.
+        hint = ""
+        if run_dir is not None and _has_task_logs(run_dir):
+            hint = (f"; `contfil run {run_dir / 'spec.toml'} --out {run_dir} --resume` "
+                    "rebuilds it from the task logs")
+        reason = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise ContfilError(f"{path} is not a readable contfil graph ({reason}){hint}") from None
 
 
 def task_summaries(run: str | Path) -> list[str]:
     """One line per task log of a run (works while the run is going on)."""
     lines = []
     for f in sorted((Path(run) / "tasks").glob("T*.jsonl")):
-        recs = parse_task_records(RecordLog(f).read()[0])
+        try:
+            recs = parse_task_records(RecordLog(f).read()[0])
+        except (ContfilError, KeyError, TypeError, ValueError) as exc:
+            lines.append(f"{f.stem:<7} damaged log: {' '.join(str(exc).split())[:120]}")
+            continue
         seed = (recs.header or {}).get("seed", {})
         last = recs.points[-1] if recs.points else None
         where = "" if last is None else f"last p={last.p:.8g}"
@@ -305,6 +367,6 @@ def task_summaries(run: str | Path) -> list[str]:
         lines.append(
             f"{f.stem:<7} {seed.get('kind', '?'):<16} {len(recs.points):4d} points  {where}"
             + (f"  specials: {kinds}" if kinds else "")
-            + (f"  ended: {recs.end}" if recs.end else "  (running or interrupted)")
+            + (f"  ended: {recs.end}" if recs.end else "  (unfinished)")
         )
     return lines

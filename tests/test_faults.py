@@ -1,0 +1,370 @@
+"""The product under faults and bad input (issue 14, D1-D6): atomic run
+directories, the run lock, clean interrupts, one-line errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from faults import contfil_process
+
+from contfil.app.cli import _interrupt_status, main
+from contfil.explore.stop import Interrupted, StopRequest
+from contfil.graph.branch_graph import BranchGraph
+from contfil.store.atomic import RecordLog, atomic_write_text, temp_owner
+from contfil.store.lock import RunLock, RunLockedError, is_locked, read_holder
+from contfil.store.run_store import RunStore, parse_task_records, run_state
+
+# Equilibria through a Hopf point onto its cycles (periodic-orbit shooting):
+# the smallest study with both kinds of branch, ~3 s.
+HOPF_SPEC = """
+[model]
+name = "hopf_2d"
+
+[continuation]
+range = [-1.0, 0.6]
+ds = 0.1
+ds_max = 0.2
+max_points = 12
+tol = 1e-11
+
+[explorer]
+depth = 1
+
+[output]
+plots = false
+graphml = false
+"""
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory) -> tuple[Path, Path]:
+    d = tmp_path_factory.mktemp("faults")
+    spec = d / "hopf.toml"
+    spec.write_text(HOPF_SPEC)
+    assert main(["run", str(spec), "--out", str(d / "run"), "--quiet"]) == 0
+    return spec, d / "run"
+
+
+def _one_line_error(err: str, needle: str) -> None:
+    assert err.startswith("contfil: error: ") and err.count("\n") == 1, err
+    assert needle in err and "Traceback" not in err, err
+
+
+def _graph(run: Path) -> BranchGraph:
+    return BranchGraph.load_json(run / "graph.json")
+
+
+def _same_graph(a: BranchGraph, b: BranchGraph, tol: float = 1e-12) -> None:
+    assert list(a.branches) == list(b.branches)
+    for bid in a.branches:
+        pa, pb = a.branch(bid).points, b.branch(bid).points
+        assert len(pa) == len(pb), bid
+        for x, y in zip(pa, pb, strict=True):
+            assert abs(x.p - y.p) <= tol and np.max(np.abs(x.u - y.u)) <= tol
+
+
+# ------------------------------------------------------------------ D1
+@pytest.mark.parametrize(("fault", "leaves"), [
+    ("call:tempfile:mkdtemp:1", "nothing"),                            # nothing made yet
+    ("call:contfil.store.run_store:atomic_write_text:1", "hidden"),    # spec.toml of the new dir
+    ("call:contfil.store.run_store:atomic_write_json:1", "hidden"),    # its run.json
+    ("call:contfil.store.run_store:fsync_dir:1", "run"),               # just after the rename
+    ("call:contfil.store.run_store:atomic_write_json:2", "run"),       # first manifest update
+])
+def test_kill_in_start_up_window_leaves_a_resumable_run(finished, tmp_path: Path,
+                                                        fault: str, leaves: str) -> None:
+    spec, ref = finished
+    run = tmp_path / "run"
+    p = contfil_process(["run", str(spec), "--out", str(run), "--quiet"], fault)
+    p.communicate(timeout=120)
+    assert p.returncode == -signal.SIGKILL
+    # Either no run directory at all (at most a hidden half-made sibling), or
+    # a complete one: never a directory that neither --resume nor a fresh run takes.
+    hidden = [f.name for f in tmp_path.iterdir() if f.name.startswith(".run.")]
+    assert run.exists() == (leaves == "run") and bool(hidden) == (leaves == "hidden")
+    assert not run.exists() or (run / "run.json").exists()
+    assert main(["run", str(spec), "--out", str(run), "--quiet", "--resume"]) == 0
+    _same_graph(_graph(ref), _graph(run))
+    # The half-made directory of the killed process is gone.
+    assert [f.name for f in tmp_path.iterdir()] == ["run"]
+
+
+# ------------------------------------------------------------------ D2
+def test_interrupt_status_sees_through_numba_wrapping() -> None:
+    stop = StopRequest()
+    assert _interrupt_status(Interrupted(signal.SIGTERM), stop) == 143
+    assert _interrupt_status(Interrupted(signal.SIGINT), stop) == 130
+    try:
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            # What numba reports when a signal handler raised inside compiled code.
+            raise SystemError("CPUDispatcher(<function f>) returned a result with an "
+                              "exception set") from None
+    except SystemError as exc:
+        wrapped = exc
+    assert _interrupt_status(wrapped, stop) == 130
+    assert _interrupt_status(ValueError("x"), stop) is None
+    stop.request(signal.SIGTERM)  # a flag set, whatever surfaced: an interrupt
+    assert _interrupt_status(ValueError("x"), stop) == 143
+
+
+def test_interrupt_inside_numba_code_is_one_line(tmp_path: Path) -> None:
+    """SIGTERM that lands while compiled code runs: 'interrupted', 143 (the
+    handler's exception surfaces at the dispatcher, possibly wrapped)."""
+    code = r'''
+import os, signal, sys, threading
+import numpy as np
+from numba import njit
+from contfil.app import cli
+
+@njit(cache=False)
+def spin(x, n):
+    s = 0.0
+    for i in range(n):
+        s += np.sin(x[i % x.size] * i)
+    return s
+
+def busy(args):
+    x = np.linspace(0.0, 1.0, 7)
+    spin(x, 10)  # compiled before the signal
+    threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGTERM)).start()
+    for _ in range(20_000):  # ~1 ms calls: the signal lands in compiled code
+        spin(x, 20_000)
+    return 0
+
+cli.COMMANDS["show"] = busy
+sys.exit(cli.main(["show", "x"]))
+'''
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 143, r.stderr
+    assert r.stderr == "contfil: interrupted\n"
+
+
+def test_failure_while_stopping_is_not_recorded_as_branch_end(tmp_path: Path) -> None:
+    """A solver failure caused by an interrupt must not end the segment in
+    the log (a resume would then stop that branch for good)."""
+    from contfil.engine.branch import Point
+    from contfil.errors import ConvergenceError
+    from contfil.explore.explorer import Explorer, ExplorerSettings, Step
+    from contfil.explore.seeds import Seed
+
+    stop = StopRequest()
+
+    class Problem:
+        kind, param, n = "equilibrium", "p", 1
+
+    def continuer(seed, direction, settings, resume):
+        for i in range(3):
+            yield Step(Point(p=0.1 * i, u=np.zeros(1), params=np.zeros(1)), np.zeros(1))
+        stop.request(signal.SIGINT)  # the signal arrived ...
+        raise ConvergenceError("Newton: interrupted mid-solve")  # ... and broke the solve
+
+    store = RunStore(tmp_path / "run", spec={})
+    ex = Explorer(Seed(Problem(), np.zeros(1), 0.0, 1), continuer,
+                  ExplorerSettings(depth=0, max_points=10), store=store, stop=stop)
+    with pytest.raises(Interrupted):
+        ex.run()
+    store.close()
+    recs = parse_task_records(RecordLog(tmp_path / "run" / "tasks" / "T0000+.jsonl").read()[0])
+    assert len(recs.points) == 3 and recs.end is None  # resumable, not ended
+
+
+# ------------------------------------------------------------------ D3
+def test_second_resume_refused_while_first_runs(finished, tmp_path: Path, capsys) -> None:
+    spec, ref = finished
+    run = tmp_path / "run"
+    shutil.copytree(ref, run)
+    with RunLock(run):  # another process's run of this directory, as far as flock goes
+        assert is_locked(run) and run_state(run) == "running"
+        assert main(["run", str(spec), "--out", str(run), "--quiet", "--resume"]) == 2
+        _one_line_error(capsys.readouterr().err, f"is in use by process {os.getpid()}")
+        assert main(["show", str(run)]) == 0
+        assert "status: running" in capsys.readouterr().out
+    assert run_state(run) == "finished"
+    assert main(["run", str(spec), "--out", str(run), "--quiet", "--resume"]) == 0
+
+
+def test_lock_of_killed_process_is_stale(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    run.mkdir()
+    code = ("import sys, time; from contfil.store.lock import RunLock; "
+            f"lock = RunLock({str(run)!r}).acquire(); print('locked', flush=True); time.sleep(60)")
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "locked"
+    assert is_locked(run)
+    with pytest.raises(RunLockedError, match=f"in use by process {p.pid} on "):
+        RunLock(run).acquire()
+    p.send_signal(signal.SIGKILL)
+    p.wait(timeout=30)
+    assert read_holder(run)["pid"] == p.pid  # the file still names the dead holder ...
+    assert not is_locked(run)  # ... but the kernel dropped its flock
+    with RunLock(run) as lock:
+        assert lock.held and read_holder(run)["pid"] == os.getpid()
+
+
+def test_resume_cleans_only_dead_processes_temporaries(finished, tmp_path: Path) -> None:
+    spec, ref = finished
+    run = tmp_path / "run"
+    shutil.copytree(ref, run)
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                              capture_output=True, text=True).stdout.strip()
+        mine = run / f".graph.json.{live.pid}.abc123.tmp"
+        gone = run / f".graph.json.{dead}.xyz789.tmp"
+        for f in (mine, gone):
+            f.write_text("partial")
+            assert temp_owner(f) in (live.pid, int(dead))
+        assert main(["run", str(spec), "--out", str(run), "--quiet", "--resume"]) == 0
+        assert mine.exists() and not gone.exists()
+    finally:
+        live.kill()
+        live.wait()
+
+
+def test_atomic_write_temporaries_carry_the_pid(tmp_path: Path) -> None:
+    seen = []
+
+    def spy(fh) -> None:
+        seen.extend(f for f in tmp_path.iterdir() if f.name.endswith(".tmp"))
+        fh.write(b"x")
+
+    from contfil.store.atomic import atomic_write
+
+    atomic_write(tmp_path / "a.txt", spy)
+    assert temp_owner(seen[0]) == os.getpid() and (tmp_path / "a.txt").read_text() == "x"
+    with pytest.raises(ZeroDivisionError):
+        atomic_write(tmp_path / "a.txt", lambda fh: 1 / 0)
+    assert [f.name for f in tmp_path.iterdir()] == ["a.txt"]  # no temporary left
+    atomic_write_text(tmp_path / "a.txt", "y")
+    assert (tmp_path / "a.txt").read_text() == "y"
+
+
+# ------------------------------------------------------------------ D5
+def test_spec_without_continuation_one_line_no_run_dir(tmp_path: Path, capsys) -> None:
+    spec = tmp_path / "s.toml"
+    spec.write_text("[model]\nname = 'pitchfork'\n")
+    assert main(["run", str(spec), "--out", str(tmp_path / "r")]) == 2
+    _one_line_error(capsys.readouterr().err, "continuation: missing table")
+    assert not (tmp_path / "r").exists()
+    assert [f.name for f in tmp_path.iterdir()] == ["s.toml"]
+
+
+@pytest.mark.parametrize("damage", [b"", b"{\"nodes\": [", b"\x00\xff\xfe\x89PNG\x01" * 50,
+                                    b"[1, 2, 3]", b"{\"directed\": true}"])
+def test_damaged_graph_json_one_line(finished, tmp_path: Path, capsys, damage: bytes) -> None:
+    spec, ref = finished
+    run = tmp_path / "run"
+    shutil.copytree(ref, run)
+    (run / "graph.json").write_bytes(damage)
+    for cmd in (["show", str(run)], ["export", str(run), "--format", "graphml"],
+                ["plot", str(run), "--out", str(tmp_path / "p")]):
+        assert main(cmd) == 2, cmd
+        err = capsys.readouterr().err
+        _one_line_error(err, "graph.json")
+        assert "--resume` rebuilds it from the task logs" in err
+    # The task logs are intact: a resume rebuilds the graph without recomputing.
+    assert main(["run", str(spec), "--out", str(run), "--quiet", "--resume"]) == 0
+    _same_graph(_graph(ref), _graph(run))
+
+
+def test_show_on_a_non_graph_file(finished, tmp_path: Path, capsys) -> None:
+    spec, _ = finished
+    assert main(["show", str(spec)]) == 2
+    _one_line_error(capsys.readouterr().err, "is not a readable contfil graph")
+    for name, text in (("g.graphml", "garbage"), ("g.graphml", "<graphml><graph>"),
+                       ("g.json", "{}")):
+        (tmp_path / name).write_text(text)
+        assert main(["show", str(tmp_path / name)]) == 2
+        _one_line_error(capsys.readouterr().err, "is not a")
+    assert main(["show", str(tmp_path / "nothing")]) == 2
+    _one_line_error(capsys.readouterr().err, "no such run directory")
+
+
+def test_too_large_problem_is_one_line(tmp_path: Path, capsys) -> None:
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "branches" / "default.toml").read_text().replace("N = 20", "N = 100000")
+    spec = tmp_path / "big.toml"
+    spec.write_text(text)
+    assert main(["run", str(spec), "--out", str(tmp_path / "r")]) == 2
+    _one_line_error(capsys.readouterr().err, "scene.geometry.N: N = 100000 needs")
+    spec.write_text("[model]\nname = 'pitchfork'\n[simulate]\nt_end = 1e9\n")
+    assert main(["simulate", str(spec), "--out", str(tmp_path / "s")]) == 2
+    _one_line_error(capsys.readouterr().err, "simulate.t_end: t_end/dt = 1e+12 time steps")
+    spec.write_text("[model]\nname = 'pitchfork'\n[simulate]\nt_end = 1.0\nframes = 1000000\n")
+    assert main(["simulate", str(spec), "--out", str(tmp_path / "s")]) == 2
+    _one_line_error(capsys.readouterr().err, "simulate.frames: expected an integer <= 100000")
+    assert not (tmp_path / "r").exists() and not (tmp_path / "s").exists()
+
+
+# ------------------------------------------------------------------ D6
+def test_unknown_observable_names_the_known_ones(finished, tmp_path: Path, capsys) -> None:
+    spec, run = finished
+    bad = tmp_path / "bad.toml"
+    bad.write_text(HOPF_SPEC.replace("[output]", "[output]\nobservable = 'energy'"))
+    assert main(["run", str(bad), "--out", str(tmp_path / "r")]) == 2
+    _one_line_error(capsys.readouterr().err,
+                    "output.observable: unknown observable 'energy'; known: ['norm'")
+    assert not (tmp_path / "r").exists()
+    assert main(["plot", str(run), "--out", str(tmp_path / "p"), "--observable", "nope"]) == 2
+    _one_line_error(capsys.readouterr().err,
+                    "plot --observable: unknown observable 'nope'; known: ['norm'")
+    assert main(["plot", str(run), "--out", str(tmp_path / "p"), "--observable", "norm"]) == 0
+
+
+def test_plot_without_spec_warns_that_shapes_are_skipped(finished, tmp_path: Path,
+                                                         capsys) -> None:
+    _, ref = finished
+    run = tmp_path / "run"
+    shutil.copytree(ref, run)
+    (run / "spec.toml").unlink()
+    assert main(["plot", str(run), "--out", str(tmp_path / "p")]) == 0
+    err = capsys.readouterr().err
+    assert err == (f"contfil: warning: no spec.toml in {run}: shape plots skipped "
+                   "(they need the model)\n")
+    assert (tmp_path / "p" / "diagram.png").exists()
+
+
+def test_missing_graph_with_intact_logs_says_how_to_rebuild(finished, tmp_path: Path,
+                                                            capsys) -> None:
+    spec, ref = finished
+    run = tmp_path / "run"
+    shutil.copytree(ref, run)
+    (run / "graph.json").unlink()
+    assert main(["export", str(run)]) == 2
+    _one_line_error(capsys.readouterr().err,
+                    f"no graph.json in {run}, but its task logs are there: `contfil run "
+                    f"{run / 'spec.toml'} --out {run} --resume` rebuilds it")
+    assert main(["run", str(run / "spec.toml"), "--out", str(run), "--quiet", "--resume"]) == 0
+    _same_graph(_graph(ref), _graph(run))
+    m = json.loads((run / "run.json").read_text())
+    assert m["status"] == "complete" and m["resumed"] == 1
+
+
+def test_show_reports_running_interrupted_finished(finished, tmp_path: Path, capsys) -> None:
+    spec, ref = finished
+    assert main(["show", str(ref)]) == 0
+    assert "status: finished" in capsys.readouterr().out
+    run = tmp_path / "run"
+    p = contfil_process(["run", str(spec), "--out", str(run), "--quiet"], "point:5")
+    p.communicate(timeout=120)
+    assert p.returncode == -signal.SIGKILL
+    assert main(["show", str(run)]) == 0
+    out = capsys.readouterr().out
+    assert "status: interrupted" in out and "(unfinished)" in out
+    t0 = time.monotonic()
+    with RunLock(run):
+        assert main(["show", str(run)]) == 0
+        assert "status: running" in capsys.readouterr().out
+    assert time.monotonic() - t0 < 30
