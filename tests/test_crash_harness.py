@@ -11,9 +11,8 @@ its end must give the uninterrupted graph. Signal tests send SIGINT or
 SIGTERM after a random delay to ``python -m contfil run``: exit 130 / 143,
 one line, no traceback; ``--resume`` then finishes the same graph.
 
-Equilibrium branches must match exactly. Cycle branches are compared too,
-in a separate test marked xfail (not strict): their exact resume (issue 14,
-D4) is the engine's part and is being fixed there.
+Equilibrium and cycle branches must both match exactly (issue 14, D4: the
+continuation state, phase references included, is stored with every point).
 """
 
 from __future__ import annotations
@@ -53,10 +52,6 @@ graphml = false
 """
 
 TOL = 1e-12
-
-# Differences found on cycle branches, by check (read by the xfail test).
-CYCLE_MISMATCHES: list[str] = []
-
 
 def _seed() -> int:
     # Random moments, reproducible: CONTFIL_HARNESS_SEED replays a failure.
@@ -99,10 +94,8 @@ def check_prefix(run: Path, ref: Path, context: str) -> None:
         bad = _compare_points(got.points, want.points[:n], f"{context}: {f.name}")
         if got.end is not None and got.end != want.end:
             bad = f"{context}: {f.name} ended {got.end!r}, the run {want.end!r}"
-        if bad and kind == "equilibrium":
-            pytest.fail(bad)
-        elif bad:
-            CYCLE_MISMATCHES.append(bad)
+        if bad:
+            pytest.fail(f"{bad} ({kind} branch)")
 
 
 def check_graph(run: Path, ref: Path, context: str) -> None:
@@ -114,10 +107,8 @@ def check_graph(run: Path, ref: Path, context: str) -> None:
         b.g.nodes[s]["label"] for s in b.special_points], context
     for bid, br in a.branches.items():
         bad = _compare_points(br.points, b.branch(bid).points, f"{context}: {bid}")
-        if bad and br.kind == "equilibrium":
-            pytest.fail(bad)
-        elif bad:
-            CYCLE_MISMATCHES.append(bad)
+        if bad:
+            pytest.fail(f"{bad} ({br.kind} branch)")
     for sid, sp in a.special_points.items():
         assert abs(sp.point.p - b.special_point(sid).point.p) <= TOL, context
 
@@ -202,10 +193,9 @@ def test_signal_at_random_moment_then_resume(reference, tmp_path: Path, sig: int
     check_graph(run, ref, context)
 
 
-@pytest.mark.xfail(strict=False, reason="D4, engine: exact resume of cycle branches")
 def test_cycle_branches_resume_exactly(reference, tmp_path: Path) -> None:
-    """The cycle-branch part of the harness and signal tests above (and a
-    kill inside the cycle branch, so there is something to compare)."""
+    """A kill inside the cycle branch: the resumed periodic orbits equal the
+    uninterrupted ones to 1e-12 (D4)."""
     spec, ref = reference
     n_eq = len(_records(ref / "tasks" / "T0000+.jsonl").points)
     run = tmp_path / "run"
@@ -213,5 +203,5 @@ def test_cycle_branches_resume_exactly(reference, tmp_path: Path) -> None:
     p.communicate(timeout=120)
     assert p.returncode == -signal.SIGKILL
     assert main(["run", str(spec), "--out", str(run), "--quiet", "--resume"]) == 0
+    check_prefix(run, ref, "kill inside the cycle branch")
     check_graph(run, ref, "kill inside the cycle branch")
-    assert not CYCLE_MISMATCHES, CYCLE_MISMATCHES[:5]

@@ -18,7 +18,8 @@ import numpy as np
 
 from contfil.app.spec import Spec
 from contfil.errors import ContfilError
-from contfil.store.atomic import atomic_write_json
+from contfil.plot.diagrams import save_figure
+from contfil.store.atomic import atomic_write, atomic_write_json
 
 
 @dataclass
@@ -35,19 +36,8 @@ class SimulationResult:
 
 
 def _savez(path: Path, **arrays: Any) -> None:
-    """``np.savez`` via a temporary file and an atomic rename."""
-    import os
-
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
-    os.replace(tmp, path)
-
-
-def _save_png(fig: Any, path: Path) -> Path:
-    from contfil.plot.diagrams import _save
-
-    return _save(fig, path)
+    """``np.savez``, written atomically."""
+    atomic_write(path, lambda fh: np.savez(fh, **arrays))
 
 
 def _initial_state(model: Any, params: np.ndarray, amp: float, seed: int) -> np.ndarray:
@@ -101,7 +91,7 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
         }
         ax = filament_snapshots(pos, t[pick], tip_positions=np.asarray(obs["tip"]))
         ax.set_title(f"{model.name}: {sim['t_end']:g} time units")
-        files.append(_save_png(ax.figure, out / "snapshots.png"))
+        files.append(save_figure(ax.figure, out / "snapshots.png"))
         plt.close(ax.figure)
         fig, axs = plt.subplots(3, 1, sharex=True, figsize=(6, 6))
         tip = np.asarray(obs["tip"])
@@ -115,7 +105,7 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
         axs[2].set_ylabel("tip azimuth (rad)")
         axs[2].set_xlabel("t")
         fig.tight_layout()
-        files.append(_save_png(fig, out / "observables.png"))
+        files.append(save_figure(fig, out / "observables.png"))
         plt.close(fig)
         _savez(out / "trajectory.npz", t=t, states=states, frame_times=t[pick],
                positions=pos, tip=np.asarray(obs["tip"]))
@@ -140,7 +130,7 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
             ax.plot(t, states[:, i], label=f"u{i}")
         ax.set_xlabel("t")
         ax.legend(fontsize=7, frameon=False)
-        files.append(_save_png(fig, out / "timeseries.png"))
+        files.append(save_figure(fig, out / "timeseries.png"))
         plt.close(fig)
         _savez(out / "trajectory.npz", t=t, states=states)
     files.append(out / "trajectory.npz")

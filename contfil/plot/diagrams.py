@@ -17,6 +17,7 @@ from matplotlib.axes import Axes
 from numpy.typing import NDArray
 
 from contfil.graph.branch_graph import BranchGraph
+from contfil.store.atomic import atomic_write
 
 Source = BranchGraph | str | Path
 
@@ -375,21 +376,16 @@ def save_run_plots(source: Source, out_dir: str | Path | None = None,
     ax = bifurcation_diagram(g, observable)
     ax.set_title(str(g.meta.get("name", "")))
     ax.figure.tight_layout()
-    paths.append(_save(ax.figure, out / "diagram.png"))
+    paths.append(save_figure(ax.figure, out / "diagram.png"))
     plt.close(ax.figure)
     if any(pt.eigenvalues is not None for _, _, pt in g.iter_points()):
         ax_re, _ = eigenvalue_plot(g)
         ax_re.figure.tight_layout()
-        paths.append(_save(ax_re.figure, out / "eigenvalues.png"))
+        paths.append(save_figure(ax_re.figure, out / "eigenvalues.png"))
         plt.close(ax_re.figure)
     return paths
 
 
-def _save(fig: Any, path: Path) -> Path:
-    """Save via a temporary name and rename, so a kill never leaves half a PNG."""
-    import os
-
-    tmp = path.with_name(f".{path.name}.tmp")
-    fig.savefig(tmp, dpi=120, format="png")
-    os.replace(tmp, path)
-    return path
+def save_figure(fig: Any, path: str | Path) -> Path:
+    """Write ``fig`` as a PNG atomically, so a kill never leaves half a file."""
+    return atomic_write(path, lambda fh: fig.savefig(fh, dpi=120, format="png"))

@@ -9,7 +9,7 @@ import matplotlib.pyplot as plt
 from matplotlib.axes import Axes
 
 from contfil.graph.branch_graph import BranchGraph
-from contfil.plot.diagrams import _save
+from contfil.plot.diagrams import save_figure
 
 
 def branch_snapshots(
@@ -40,6 +40,6 @@ def save_shape_plots(model: Any, graph: BranchGraph, out_dir: str | Path) -> lis
         if br.kind == "equilibrium" or not br.points:
             continue
         ax = branch_snapshots(model, graph, bid)
-        paths.append(_save(ax.figure, out / f"shape_{bid}.png"))
+        paths.append(save_figure(ax.figure, out / f"shape_{bid}.png"))
         plt.close(ax.figure)
     return paths
