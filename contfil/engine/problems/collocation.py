@@ -106,11 +106,16 @@ class CollocationProblem(Problem):
     dense_threshold:
         Dense Jacobian (and bordered-determinant branch-point test) when
         ``n <= dense_threshold``; sparse LU otherwise.
+    subspace:
+        Name of a (linear) invariant subspace of ``model``: the orbit is
+        solved in its reduced model (a standing wave of an O(2) model, whose
+        full-space orbit comes in a circle of rotated copies), the
+        multipliers are those of the full model along the embedded orbit, so
+        modes leaving the subspace are seen (``SubspaceBreakingEvent``).
     """
 
     kind = PERIODIC_ORBIT
     n_extra = 1
-    subspace = None  # the cycle events ask; collocation solves in the full space
 
     def __init__(
         self,
@@ -131,6 +136,7 @@ class CollocationProblem(Problem):
         dense_threshold: int = 600,
         stage_tol: float = 1e-13,
         period_means: int = 0,
+        subspace: str | None = None,
     ) -> None:
         if int(ntst) < 2:
             raise SpecError(f"CollocationProblem: ntst must be >= 2, got {ntst}")
@@ -138,8 +144,22 @@ class CollocationProblem(Problem):
         self.param = param
         self.ip = param_index(model, param)
         self.base_params = resolve_params(model, params, type(self).__name__)
-        self.vf = VectorField(model, jacobian)
-        self.dim = int(model.dim)
+        self.subspace = None
+        self.solve_model: Any = model
+        self._embed: Array | None = None
+        if subspace is not None:
+            subs = model.symmetries.invariant_subspaces
+            if subspace not in subs:
+                raise SpecError(f"model {model.name!r} has no invariant subspace {subspace!r}; "
+                                f"known: {list(subs)}")
+            self.subspace = subs[subspace]
+            self.solve_model = self.subspace.reduced_model()
+            k = int(self.solve_model.dim)
+            self._embed = np.column_stack([np.asarray(self.subspace.embed(e), dtype=float)
+                                           for e in np.eye(k)])
+        self.vf = VectorField(self.solve_model, jacobian)
+        self.vf_full = self.vf if subspace is None else VectorField(model, jacobian)
+        self.dim = int(self.solve_model.dim)
         self.ntst = int(ntst)
         self.table = GaussTable.make(int(ncol))
         self.ncol = self.table.m
@@ -375,8 +395,9 @@ class CollocationProblem(Problem):
         return np.concatenate([lin["dPhi_p"].ravel(), [float(np.sum(row[:, self.dim + 1]))]])
 
     def state(self, x: Array) -> Array:
-        """The state at the phase origin ``τ = 0``."""
-        return np.array(x[: self.dim], dtype=float)
+        """The (full-model) state at the phase origin ``τ = 0``."""
+        u = np.array(x[: self.dim], dtype=float)
+        return u if self._embed is None else self._embed @ u
 
     def extra(self, x: Array) -> dict[str, float]:
         """``period``, and the orbit's error estimates (``mesh_error``,
@@ -398,7 +419,7 @@ class CollocationProblem(Problem):
         """Fold, branch point, period doubling and torus of cycles."""
         from contfil.engine.events.cycles import cycle_events
 
-        return [*cycle_events(), MeshTracker()]
+        return [*cycle_events(subspace=self.subspace is not None), MeshTracker()]
 
     # ------------------------------------------------------------- orbit
     def stages(self, x: Array, p: float) -> Array:
@@ -435,7 +456,8 @@ class CollocationProblem(Problem):
         """Gauss nodes' states ``Y`` (``(N m, dim)``) and weights summing to 1."""
         s = self._solve(np.asarray(x, dtype=float), p)
         w = (self.h[:, None] * self.table.b[None, :]).ravel()
-        return s["Y"].reshape(-1, self.dim), w
+        Y = s["Y"].reshape(-1, self.dim)
+        return (Y if self._embed is None else Y @ self._embed.T), w
 
     def observables(self, x: Array, p: float) -> dict[str, Any]:
         """Model observables at the phase origin, ``period``, the L2 norm
@@ -461,9 +483,31 @@ class CollocationProblem(Problem):
         return out
 
     # ------------------------------------------------------------- stability
-    def trivial_directions(self, x: Array, p: float) -> list[Array]:
-        """``f(u_0)``: the time-shift direction at the phase origin."""
-        return [np.asarray(self.model.rhs(self.state(x), self.params_at(p)), dtype=float)]
+    def trivial_directions(self, x: Array, p: float, node: int = 0) -> list[Array]:
+        """``f(u_j)`` and ``L u_j`` per continuous symmetry, in the full model,
+        at mesh point ``node`` (the phase origin by default)."""
+        U = self.split(np.asarray(x, dtype=float))[0][node]
+        u = U if self._embed is None else self._embed @ U
+        dirs = [np.asarray(self.model.rhs(u, self.params_at(p)), dtype=float)]
+        if self._embed is not None:
+            dirs += [s.tangent(u) for s in self.model.symmetries.continuous]
+        return dirs
+
+    def full_transfer_blocks(self, x: Array, p: float) -> Array:
+        """Transfer blocks of the full model along the orbit (= :meth:`transfer_blocks`
+        unless solved in a subspace: then the full model is linearised along
+        the embedded stages)."""
+        x = np.asarray(x, dtype=float)
+        if self._embed is None:
+            return self.transfer_blocks(x, p)
+        s = self._solve(x, p)
+        E = self._embed
+        Yf = s["Y"] @ E.T
+        Kf = s["K"] @ E.T
+        J = self.vf_full.jac(Yf, s["q"])
+        out = condense_intervals(J, Kf, self.h, s["T"], self.table.A, self.table.b,
+                                 np.zeros_like(Kf))
+        return out[0]
 
     def transfer_blocks(self, x: Array, p: float) -> Array:
         """``∂Φ_j/∂u_j`` (shape ``(N, dim, dim)``): the monodromy is their product."""
@@ -483,7 +527,7 @@ class CollocationProblem(Problem):
         if hit is not None:
             return hit
         self.stats["stability_calls"] += 1
-        blocks = self.transfer_blocks(x, p)
+        blocks = self.full_transfer_blocks(x, p)
         mu, V = pencil_multipliers(blocks)
         # The time-shift eigenvector f(u) is told apart by projection where the
         # orbit is fastest: at a slow phase origin (near a saddle) f(u_0) lines
@@ -493,7 +537,7 @@ class CollocationProblem(Problem):
         j = int(np.argmax(np.linalg.norm(fU, axis=1)))
         if j > 0:
             mu_j, V_j = pencil_multipliers(np.concatenate([blocks[j:], blocks[:j]]))
-            flags, tinfo = flag_trivial(mu_j, V_j, [fU[j]])
+            flags, tinfo = flag_trivial(mu_j, V_j, self.trivial_directions(x, p, j))
             trivial = np.zeros(mu.size, dtype=bool)
             for k in np.flatnonzero(flags):
                 free = np.flatnonzero(~trivial)
@@ -501,7 +545,7 @@ class CollocationProblem(Problem):
             tinfo["distance_from_one"] = float(np.max(np.abs(mu[trivial] - 1.0))) \
                 if trivial.any() else float("nan")
         else:
-            trivial, tinfo = flag_trivial(mu, V, [fU[0]])
+            trivial, tinfo = flag_trivial(mu, V, self.trivial_directions(x, p))
         order = np.lexsort((-mu.imag, -np.round(np.abs(mu), 12)))
         mu, V, trivial = mu[order], V[:, order], trivial[order]
         T = float(x[-1])
@@ -654,8 +698,10 @@ class CollocationProblem(Problem):
         self.stats["remeshes"] += 1
         return np.concatenate([u_new.ravel(), [T]])
 
-    def _newton(self, x: Array, p: float, tol: float = 1e-11, max_iter: int = 12) -> Array:
-        """Newton on ``G(x, p) = 0`` at fixed ``p`` (re-solve after a remesh)."""
+    def correct(self, x: Array, p: float, tol: float = 1e-11, max_iter: int = 12) -> Array:
+        """Newton on ``G(x, p) = 0`` at fixed ``p`` (direct LU of the condensed
+        system); for a guess from :meth:`x_from_samples` call
+        :meth:`set_reference` on it first."""
         for _ in range(max_iter):
             r = self.residual(x, p)
             if float(np.max(np.abs(r))) <= tol:

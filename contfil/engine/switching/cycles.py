@@ -384,7 +384,8 @@ def standing_wave_from_double_hopf(
     eps: float | None = None,
     symmetry_index: int = 0,
     subspace: str | None = None,
-    steps: int = 100,
+    steps: int | None = None,
+    method: str | None = None,
     **problem_kw: Any,
 ) -> BranchStart:
     """First standing wave from an O(2) double Hopf point.
@@ -394,7 +395,11 @@ def standing_wave_from_double_hopf(
     :class:`RelativePeriodicOrbitProblem` (the drift θ converges to 0), or,
     with ``subspace``, as a :class:`PeriodicOrbitProblem` in that invariant
     subspace's reduced model (the standing mode is then chosen inside the
-    subspace); stability is always computed in the full model.
+    subspace); stability is always computed in the full model. With
+    ``method="collocation"`` (the default for a model without ``flow`` when
+    ``steps`` is not given) the subspace solve is a :class:`CollocationProblem`
+    seeded with ``u* + ε Re(ŝ e^{2πiτ})``; collocation has no drift unknown,
+    so it needs ``subspace``.
     """
     hd, L = _o2_modes(model, hopf, symmetry_index)
     modes = hd["modes"]
@@ -415,6 +420,31 @@ def standing_wave_from_double_hopf(
     base = np.asarray(params if params is not None else hd["params"], dtype=float)
     T0 = 2 * np.pi / abs(om)
     u0 = u_s + e * d
+    if cycle_method(model, method, steps) == "collocation":
+        if subspace is None:
+            raise ContfilError(
+                "standing waves by collocation need an invariant subspace (subspace=...): in "
+                "the full space the rotated copies make the collocation system singular; or "
+                "use method='shooting' (relative periodic orbit)")
+        sub = model.symmetries.invariant_subspaces[subspace]
+        cp = CollocationProblem(model, param, base, subspace=subspace, **problem_kw)
+        sh = s / np.linalg.norm(s.real)
+        sgn = 1.0 if om > 0 else -1.0
+        wave = np.real(sh[None, :] * np.exp(sgn * 2j * np.pi * cp.tau[:-1])[:, None])
+        proj = lambda w: np.asarray(sub.project(w), dtype=float)  # noqa: E731
+        ur_s = proj(u_s)
+        mode = np.array([proj(u_s + w) - ur_s for w in wave])
+        dx = np.concatenate([mode.ravel(), [0.0]])
+        x_star = np.concatenate([np.tile(ur_s, cp.ntst), [T0]])
+        xg = x_star + e * dx
+        cp.set_reference(xg, p_s)
+        x1, p1, info = solve_with_amplitude(cp, xg, p_s, x_star, dx,
+                                            e * float(np.linalg.norm(dx)))
+        return _start(cp, (x1, p1), np.concatenate([x_star, [p_s]]), {
+            "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "subspace": subspace,
+            "method": "collocation", "side": float(np.sign(p1 - p_s)),
+            "newton_iterations": info["iterations"]})
+    steps = 100 if steps is None else steps
     if subspace is not None:
         sub = model.symmetries.invariant_subspaces[subspace]
         pb: PeriodicOrbitProblem = PeriodicOrbitProblem(model, param, base, steps=steps,
@@ -477,7 +507,7 @@ def _collocation_x(problem: CollocationProblem, sp: SpecialPoint) -> Array:
     t = np.linspace(0.0, T, 20 * problem.ntst + 1)
     x = problem.x_from_samples(t, sol.sol(t).T, period=T)
     problem.set_reference(x, float(sp.point.p))
-    return problem._newton(x, float(sp.point.p), tol=1e-9)
+    return problem.correct(x, float(sp.point.p), tol=1e-9)
 
 
 def _along_orbit(problem: CollocationProblem, x: Array, p: float, v: Array) -> Array:
