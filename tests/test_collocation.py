@@ -263,7 +263,7 @@ def test_lorenz_branch_towards_the_homoclinic_orbit_is_a_true_orbit():
     # grow to the homoclinic orbit at ρ = 13.9266 (AUTO demo lrz). The mesh
     # moves to the fast part of the orbit as T grows; every few points the
     # orbit is checked by an independent DOP853 integration of short pieces.
-    _, start = lorenz_cycles(verify=3, verify_tol=1e-5, trivial_tol=np.inf)
+    _, start = lorenz_cycles(verify=3, verify_tol=1e-5)
     assert start.info["side"] == -1.0
     assert start.info["omega"] ** 2 == pytest.approx(8.0 / 3.0 * (10.0 + 470.0 / 19.0), rel=1e-8)
     run = start.continuation(ContinuationSettings(ds=0.5, ds_max=5.0, ds_min=1e-6,
@@ -288,11 +288,13 @@ def test_lorenz_branch_towards_the_homoclinic_orbit_is_a_true_orbit():
 
 
 def test_lorenz_branch_reaches_period_500():
-    # AUTO's demo lrz (NTST 35, NCOL 4) ends at T = 585, ρ = 13.9266. The
-    # multipliers are not checked here: near the homoclinic orbit the slow
-    # passage by the saddle sits in a few long intervals whose transfer blocks
-    # (Padé approximants of e^{hTλ}, |R(∞)| = 1) cannot carry e^{λT}.
-    _, start = lorenz_cycles(trivial_tol=np.inf)
+    # AUTO's demo lrz (NTST 35, NCOL 4) ends at T = 585, ρ = 13.9266. Every
+    # point passes the trivial-multiplier check (the time-shift mode carried
+    # interval by interval); the multipliers' values are not checked: near the
+    # homoclinic orbit the slow passage by the saddle sits in a few long
+    # intervals whose transfer blocks (Padé approximants of e^{hTλ},
+    # |R(∞)| = 1) cannot carry e^{λT}.
+    _, start = lorenz_cycles()
     run = start.continuation(ContinuationSettings(ds=0.5, ds_max=5.0, ds_min=1e-6,
                                                   max_points=120, p_min=13.0, p_max=30.0))
     for pt in run:
@@ -300,6 +302,7 @@ def test_lorenz_branch_reaches_period_500():
             break
     assert pt.extra["period"] > 500.0
     assert pt.p == pytest.approx(13.9266, abs=5e-5)  # AUTO: 13.9266 at T = 585
+    assert max(q.extra["trivial_defect"] for q in run.branch.points) < 1e-6
     x, p = start.problem.restore(pt.u)  # the orbit of that point, on its mesh
     assert p == pt.p
     v = start.problem.verify_orbit(x, p)
