@@ -208,8 +208,19 @@ class CollocationProblem(Problem):
         return tau.copy()
 
     @property
+    def tau(self) -> Array:
+        """The mesh ``0 = τ_0 < ... < τ_N = 1``."""
+        return self._tau
+
+    @tau.setter
+    def tau(self, value: Array) -> None:
+        self._tau = np.asarray(value, dtype=float)
+        self._h = np.diff(self._tau)
+
+    @property
     def h(self) -> Array:
-        return np.diff(self.tau)
+        """Interval widths ``h_j = τ_{j+1} - τ_j``."""
+        return self._h
 
     @property
     def rhs_evals(self) -> int:
