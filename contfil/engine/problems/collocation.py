@@ -426,7 +426,7 @@ class CollocationProblem(Problem):
         p = next((np.frombuffer(k[len(xb): len(xb) + 8])[0] for k in reversed(self._sol)
                   if k.startswith(xb)), None)
         if p is not None:
-            info = self.stability(x, float(p)).info
+            info = self.stability(x, float(p), vectors=False).info
             out.update({k: float(info[k]) for k in (
                 "mesh_error", "trivial_distance", "trivial_defect", "periodicity_residual",
                 "interval_defect") if k in info})
@@ -541,20 +541,21 @@ class CollocationProblem(Problem):
         x = np.asarray(x, dtype=float)
         key = self._key(x, p)
         hit = self._stab.get(key)
-        if hit is not None:
+        if hit is not None and (hit.vectors is not None or not vectors):
             return hit
         self.stats["stability_calls"] += 1
         blocks = self.full_transfer_blocks(x, p)
-        mu, V = pencil_multipliers(blocks)
         # The time-shift eigenvector f(u) is told apart by projection where the
         # orbit is fastest: at a slow phase origin (near a saddle) f(u_0) lines
-        # up with the saddle's eigenvectors. Same multipliers, vectors at u_j.
+        # up with the saddle's eigenvectors. The multipliers are the same at
+        # every mesh point; the eigenvectors returned are those at u_0.
         U = self.split(x)[0]
         fU = self.vf.f(U, self.params_at(p))
         j = int(np.argmax(np.linalg.norm(fU, axis=1)))
-        if j > 0:
-            mu_j, V_j = pencil_multipliers(np.concatenate([blocks[j:], blocks[:j]]))
-            flags, tinfo = flag_trivial(mu_j, V_j, self.trivial_directions(x, p, j))
+        mu_j, V_j = pencil_multipliers(np.concatenate([blocks[j:], blocks[:j]]))
+        flags, tinfo = flag_trivial(mu_j, V_j, self.trivial_directions(x, p, j))
+        if vectors and j > 0:
+            mu, V = pencil_multipliers(blocks)
             trivial = np.zeros(mu.size, dtype=bool)
             for k in np.flatnonzero(flags):
                 free = np.flatnonzero(~trivial)
@@ -562,9 +563,13 @@ class CollocationProblem(Problem):
             tinfo["distance_from_one"] = float(np.max(np.abs(mu[trivial] - 1.0))) \
                 if trivial.any() else float("nan")
         else:
-            trivial, tinfo = flag_trivial(mu, V, self.trivial_directions(x, p))
-        order = np.lexsort((-mu.imag, -np.round(np.abs(mu), 12)))
-        mu, V, trivial = mu[order], V[:, order], trivial[order]
+            mu, V, trivial = mu_j, (V_j if vectors else None), flags
+        amu = np.abs(mu)
+        # by modulus, pairs by the sign of Im (rounding only where it cannot overflow)
+        order = np.lexsort((-mu.imag, -np.where(amu < 1e200, np.round(np.minimum(amu, 1e200),
+                                                                          12), amu)))
+        mu, trivial = mu[order], trivial[order]
+        V = None if V is None else V[:, order]
         T = float(x[-1])
         s = self._solve(x, p)
         _, err = mesh_monitor(self.table, self.h, s["K"], T)
@@ -572,10 +577,9 @@ class CollocationProblem(Problem):
         # for the flow; its defect is linear in the discretisation error, also
         # at a fold, where |μ_trivial - 1| grows like its square root (Jordan
         # pair), and it needs no product of blocks (no overflow)
-        fq = self.vf.f(U, self.params_at(p))
-        moved = np.einsum("jab,jb->ja", self.transfer_blocks(x, p), fq)
-        defect = float(np.max(np.abs(moved - np.roll(fq, -1, axis=0)))
-                       / max(float(np.max(np.abs(fq))), 1e-300))
+        moved = np.einsum("jab,jb->ja", self.transfer_blocks(x, p), fU)
+        defect = float(np.max(np.abs(moved - np.roll(fU, -1, axis=0)))
+                       / max(float(np.max(np.abs(fU))), 1e-300))
         info: dict[str, Any] = {"trivial_info": tinfo, "method": "collocation",
                                 "trivial_distance": float(tinfo.get("distance_from_one", np.nan)),
                                 "trivial_defect": defect,
