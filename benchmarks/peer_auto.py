@@ -18,12 +18,16 @@ Problems (AUTO's demo files, read from the source; the same NTST/NCOL):
   the first branch point (AUTO's third run, 90 points). contfil runs over the
   same period range.
 
-Both programs run in this process's machine state, interleaved, ``--repeat``
-times (the fastest run of each counts); contfil after one warm-up run (numba
-compilation is cached on disk, its first load is not counted). BLAS and
-OpenMP are limited to one thread for both. The last line is one JSON object:
-``time_per_point_ratio_lrz`` and ``time_per_point_ratio_tor`` are contfil's
-time per continuation point over AUTO's.
+Both programs run interleaved, ``--repeat`` times (the fastest run of each
+counts); contfil after one warm-up run (numba compilation is cached on disk,
+its first load is not counted). Time is CPU time (``time.process_time`` for
+contfil, the child's ``rusage`` for AUTO, whose runs include process start
+and file output): on a shared machine wall time of the longer contfil runs
+suffers more from preemption than AUTO's runs of tens of milliseconds; wall
+ratios are printed too. BLAS and OpenMP are limited to one thread for both.
+The last line is one JSON object: ``time_per_point_ratio_lrz`` and
+``time_per_point_ratio_tor`` are contfil's CPU time per continuation point
+over AUTO's.
 
 Usage::
 
@@ -41,6 +45,7 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 import argparse  # noqa: E402
 import json  # noqa: E402
 import re  # noqa: E402
+import resource  # noqa: E402
 import shutil  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
@@ -60,6 +65,7 @@ from contfil.models.catalog.cycles_published import (  # noqa: E402
 )
 from contfil.protocol import FunctionModel  # noqa: E402
 
+EVENT_TOL = float(os.environ.get("PEER_AUTO_EVENT_TOL", "1e-10"))
 AUTO_GIT = "https://github.com/auto-07p/auto-07p"
 # AUTO's point types (fort.7 column TY) as contfil kinds
 AUTO_TYPES = {1: "cycle_branch_point", 2: "cycle_fold", 3: "hopf", 5: "cycle_fold",
@@ -145,12 +151,15 @@ class AutoDemo:
         if start is not None:
             shutil.copy(self.dir / start, self.dir / "fort.3")
         t0 = time.perf_counter()
+        c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         out = _sh([f"./{self.demo}.exe"], self.dir).stdout
+        c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
         wall = time.perf_counter() - t0
+        cpu = (c1.ru_utime - c0.ru_utime) + (c1.ru_stime - c0.ru_stime)
         m = re.search(r"Total Time\s+([0-9.Ee+-]+)", out)
         npts, special, last = _parse_fort7(self.dir / "fort.7")
-        return {"wall": wall, "auto_time": float(m.group(1)) if m else wall, "points": npts,
-                "special": special, "T_end": last, "stdout": out}
+        return {"wall": wall, "cpu": cpu, "auto_time": float(m.group(1)) if m else wall,
+                "points": npts, "special": special, "T_end": last, "stdout": out}
 
     def keep(self, name: str) -> None:
         shutil.copy(self.dir / "fort.8", self.dir / name)
@@ -194,7 +203,7 @@ def _hopf(model, param: str, u0: np.ndarray, p0: float, p_max: float, ds: float)
 
 def _follow(start, settings: ContinuationSettings, T_end: float, min_points: int) -> tuple:
     run = start.continuation(settings)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     error = None
     try:
         for pt in run:
@@ -202,12 +211,13 @@ def _follow(start, settings: ContinuationSettings, T_end: float, min_points: int
                 break
     except Exception as exc:  # noqa: BLE001 - reported, not hidden
         error = f"{type(exc).__name__}: {exc}"
-    wall = time.perf_counter() - t0
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
     br = run.branch
     special = [(sp.kind, sp.point.p, sp.point.extra["period"]) for sp in br.special_points
                if sp.kind != "endpoint"]
-    return {"wall": wall, "points": len(br.points), "special": special, "error": error,
-            "T_end": br.points[-1].extra["period"], "p_end": br.points[-1].p}, br
+    return {"wall": wall, "cpu": cpu, "points": len(br.points), "special": special,
+            "error": error, "T_end": br.points[-1].extra["period"],
+            "p_end": br.points[-1].p}, br
 
 
 def contfil_lrz(T_end: float) -> dict:
@@ -251,12 +261,13 @@ def contfil_tor(T_end2: float, T_end3: float) -> tuple[dict, dict]:
     m = freire_vectorised()
     hopf = _hopf(m, "nu", m.initial_state(None), -0.9, -0.55, 0.05)
     start = cycles_from_hopf(m, "nu", hopf, eps=0.01, ntst=25, ncol=4)
-    s = ContinuationSettings(ds=0.005, ds_max=0.02, max_points=1000, p_min=-0.9, p_max=-0.4)
+    s = ContinuationSettings(ds=0.005, ds_max=0.02, max_points=1000, p_min=-0.9, p_max=-0.4,
+                             event_tol=EVENT_TOL)
     r2, br = _follow(start, s, T_end2, 1)
     bp = next((sp for sp in br.special_points if sp.kind == "cycle_branch_point"), None)
     if bp is None:
-        return r2, {"wall": 0.0, "points": 0, "special": [], "error": "no branch point",
-                    "T_end": float("nan"), "p_end": float("nan")}
+        return r2, {"wall": 0.0, "cpu": 0.0, "points": 0, "special": [],
+                    "error": "no branch point", "T_end": float("nan"), "p_end": float("nan")}
     new = cycles_from_branch_point(start.problem, bp, eps=0.01, side=1)
     r3, _ = _follow(new, s, T_end3, 1)
     return r2, r3
@@ -302,7 +313,7 @@ def main() -> None:
     contfil_lrz(20.0)  # warm-up: numba kernels loaded from the cache
     best: dict[str, dict] = {}
 
-    def keep_best(key: str, res: dict, time_key: str = "wall") -> None:
+    def keep_best(key: str, res: dict, time_key: str = "cpu") -> None:
         if key not in best or res[time_key] < best[key][time_key]:
             best[key] = res
 
@@ -319,33 +330,39 @@ def main() -> None:
         keep_best("contfil_tor2", c2)
         keep_best("contfil_tor3", c3)
 
-    def per_point(r: dict) -> float:
-        return r["wall"] / max(r["points"], 1)
+    def per_point(r: dict, key: str = "cpu") -> float:
+        return r[key] / max(r["points"], 1)
 
-    summary: dict[str, object] = {"auto": have_auto, "auto_status": why}
+    summary: dict[str, object] = {"auto": have_auto, "auto_status": why,
+                                  "time": "CPU seconds (process / child rusage), fastest of "
+                                          f"{max(1, a.repeat)}"}
     rows = [("lrz", ["lrz"]), ("tor", ["tor2", "tor3"])]
     for name, parts in rows:
-        c_time = sum(best[f"contfil_{p}"]["wall"] for p in parts)
+        c_time = sum(best[f"contfil_{p}"]["cpu"] for p in parts)
+        c_wall = sum(best[f"contfil_{p}"]["wall"] for p in parts)
         c_pts = sum(best[f"contfil_{p}"]["points"] for p in parts)
         summary[f"contfil_points_{name}"] = c_pts
         summary[f"contfil_ms_per_point_{name}"] = round(1e3 * c_time / c_pts, 3)
         for p in parts:
             r = best[f"contfil_{p}"]
-            print(f"contfil {p}: {r['points']} points, {r['wall']:.3f} s "
-                  f"({1e3 * per_point(r):.2f} ms/point), T_end {r['T_end']:.4g} at "
+            print(f"contfil {p}: {r['points']} points, {r['cpu']:.3f} s CPU, {r['wall']:.3f} s "
+                  f"wall ({1e3 * per_point(r):.2f} ms/point), T_end {r['T_end']:.4g} at "
                   f"{r['p_end']:.7g}" + (f", stopped: {r['error']}" if r["error"] else ""))
             print(f"   special: {_fmt_special(r['special'])}")
         if have_auto:
-            a_time = sum(best[f"auto_{p}"]["wall"] for p in parts)
+            a_time = sum(best[f"auto_{p}"]["cpu"] for p in parts)
+            a_wall = sum(best[f"auto_{p}"]["wall"] for p in parts)
             a_pts = sum(best[f"auto_{p}"]["points"] for p in parts)
             summary[f"auto_points_{name}"] = a_pts
             summary[f"auto_ms_per_point_{name}"] = round(1e3 * a_time / a_pts, 3)
             summary[f"time_per_point_ratio_{name}"] = round((c_time / c_pts) / (a_time / a_pts),
                                                             2)
+            summary[f"wall_time_per_point_ratio_{name}"] = round(
+                (c_wall / c_pts) / (a_wall / a_pts), 2)
             for p in parts:
                 r = best[f"auto_{p}"]
-                print(f"AUTO    {p}: {r['points']} points, {r['wall']:.3f} s wall "
-                      f"({1e3 * per_point(r):.2f} ms/point; AUTO's own clock "
+                print(f"AUTO    {p}: {r['points']} points, {r['cpu']:.3f} s CPU, {r['wall']:.3f} s "
+                      f"wall ({1e3 * per_point(r):.2f} ms/point; AUTO's own clock "
                       f"{r['auto_time']:.3f} s)")
                 print(f"   special: {_fmt_special(r['special'])}")
                 cmp_ = compare_special(r["special"], best[f"contfil_{p}"]["special"])

@@ -125,10 +125,9 @@ def test_freire_fold_torus_period_doubling_at_matcont_values():
 
 @pytest.fixture(scope="module")
 def freire_auto_demo():
-    # event_tol 1e-11: the critical multiplier moves by 110 per unit ν here,
-    # so |μ - 1| <= 1e-6 at the branch point needs ν to ~1e-8 (1e-10 in
-    # arclength left it at 1.3e-6 on this mesh)
-    return _freire_cycles(0.0, p_min=-0.59, max_points=20, event_tol=1e-11, **FREIRE_AUTO_DEMO)
+    # the branch point is localised on log μ of the crossing multiplier
+    # (CollocationBranchPointEvent): μ moves by 210 per unit ν there
+    return _freire_cycles(0.0, p_min=-0.59, max_points=20, **FREIRE_AUTO_DEMO)
 
 
 def test_freire_fold_and_branch_point_at_auto_reference_values(freire_auto_demo):
@@ -161,9 +160,8 @@ def test_freire_fold_and_branch_point_at_auto_reference_values(freire_auto_demo)
 
 def test_freire_symmetric_fold_and_branch_point_against_independent_solve():
     # MatCont's constants at ε = 0; the same independent DOP853 computation
-    # as the shooting test, to 1e-8 in ν and 1e-7 in T (T moves fast near the
-    # branch point: localised to 1e-11 in arclength as above)
-    _, _, _, br = _freire_cycles(0.0, p_min=-0.59, max_points=20, event_tol=1e-11)
+    # as the shooting test, to 1e-8 in ν and 1e-7 in T
+    _, _, _, br = _freire_cycles(0.0, p_min=-0.59, max_points=20)
     ev = _events(br)
     assert [sp.kind for sp in ev] == [CYCLE_FOLD, CYCLE_BRANCH_POINT]
     for sp, kind in zip(ev, ("fold", "branch_point"), strict=True):

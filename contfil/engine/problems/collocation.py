@@ -49,6 +49,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from contfil.engine.branch import PERIODIC_ORBIT
+from contfil.engine.events.cycles import CycleBranchPointEvent, cycle_events
 from contfil.engine.linalg.collocation_floquet import pencil_multipliers
 from contfil.engine.linalg.floquet import flag_trivial
 from contfil.engine.linalg.small_blocks import batched_lu, batched_lu_solve, condense_intervals
@@ -64,7 +65,7 @@ from contfil.protocol import Model, param_index
 
 Array = NDArray[np.float64]
 
-__all__ = ["CollocationProblem", "MeshTracker"]
+__all__ = ["CollocationProblem", "CollocationBranchPointEvent", "MeshTracker"]
 
 
 class CollocationProblem(Problem):
@@ -189,6 +190,7 @@ class CollocationProblem(Problem):
         self._lin: OrderedDict[bytes, dict[str, Any]] = OrderedDict()
         self._stab: OrderedDict[bytes, Stability] = OrderedDict()
         self._warm: Array | None = None
+        self._pred: tuple | None = None
         self._minv: tuple[Array, Array] | None = None
         self.records: OrderedDict[bytes, tuple[Array, Array, float]] = OrderedDict()
         self.stats = {"remeshes": 0, "stage_iterations": 0, "stability_calls": 0}
@@ -274,13 +276,20 @@ class CollocationProblem(Problem):
         A = self.table.A
         hT = self.h * T
         K = self._warm if self._warm is not None and self._warm.shape == (N, m, d) else None
+        pred = self._pred
+        if pred is not None and pred[5] is self._tau and pred[3].shape == (N, m, d):
+            U0, T0, p0, K0, S = pred[:5]
+            guess = K0 + (np.einsum("jiac,jc->jia", S[..., :d], U - U0) + S[..., d] * (T - T0)
+                          + S[..., d + 1] * (p - p0))
+            if np.all(np.isfinite(guess)):
+                K = guess
         if K is None or not np.all(np.isfinite(K)):
             K = np.repeat(self.vf.f(U, q)[:, None, :], m, axis=1)
         lu = self._minv if self._minv is not None and self._minv[0].shape[0] == N else None
         prev = np.inf
-        fresh = False
         err = np.inf
-        for it in range(40):
+        for _ in range(40):
+            self.stats["stage_iterations"] += 1
             Y = U[:, None, :] + hT[:, None, None] * (A @ K)
             with np.errstate(all="ignore"):
                 F = self.vf.f(Y, q)
@@ -288,12 +297,10 @@ class CollocationProblem(Problem):
             err = float(np.max(np.abs(r)))
             if not np.isfinite(err):
                 raise DomainError("collocation: non-finite stage values (the step was too large)")
-            if err <= self.stage_tol * (1.0 + float(np.max(np.abs(F)))):
-                break
-            if err > 0.25 * prev and fresh and it > 8:
-                raise DomainError(
-                    f"collocation: the stage equations did not converge (|r| = {err:.2e}); "
-                    "the step was too large or the mesh too coarse (increase ntst)")
+            scale = 1.0 + float(np.max(np.abs(F)))
+            if err <= self.stage_tol * scale or (err <= 1e3 * self.stage_tol * scale
+                                                 and err > 0.25 * prev):
+                break  # converged, or stalled at the rounding level
             if lu is None or err > 0.25 * prev:
                 # simplified Newton: refresh the frozen stage matrix only when
                 # the contraction is slow
@@ -302,13 +309,11 @@ class CollocationProblem(Problem):
                 if worst < 1e-14:
                     raise DomainError("collocation: singular stage block (increase ntst)")
                 lu = (LU, piv)
-                fresh = True
             K = K - batched_lu_solve(lu[0], lu[1], r.reshape(N, m * d, 1)).reshape(N, m, d)
             prev = err
         else:
             raise DomainError(f"collocation: the stage equations did not converge in 40 "
                               f"iterations (|r| = {err:.2e}); increase ntst")
-        self.stats["stage_iterations"] += it
         self._warm, self._minv = K, lu
         return self._remember(self._sol, key, {"K": K, "Y": Y, "U": U, "T": T, "q": q})
 
@@ -331,6 +336,9 @@ class CollocationProblem(Problem):
         if worst < 1e-14:
             raise DomainError("collocation: singular stage block (increase ntst)")
         self._minv = (LU, piv)  # exact at the solution: the best frozen matrix
+        # first-order predictor of the stages for the next solve nearby (the
+        # linear condensation AUTO does inside its Newton step)
+        self._pred = (s["U"], T, p, K, S, self.tau)
         out = {"dPhi": dPhi, "dPhi_T": dPhi_T, "dPhi_p": dPhi_p, "dY": dY, "dK": S}
         return self._remember(self._lin, key, out)
 
@@ -434,9 +442,9 @@ class CollocationProblem(Problem):
 
     def default_events(self) -> list:
         """Fold, branch point, period doubling and torus of cycles."""
-        from contfil.engine.events.cycles import cycle_events
-
-        return [*cycle_events(subspace=self.subspace is not None), MeshTracker()]
+        evs = [CollocationBranchPointEvent() if type(e) is CycleBranchPointEvent else e
+               for e in cycle_events(subspace=self.subspace is not None)]
+        return [*evs, MeshTracker()]
 
     # ------------------------------------------------------------- orbit
     def stages(self, x: Array, p: float) -> Array:
@@ -815,3 +823,38 @@ class MeshTracker:
         if isinstance(pb, CollocationProblem):
             pb._tangent = (ctx.tangent, ctx.X)
         return values
+
+
+class CollocationBranchPointEvent(CycleBranchPointEvent):
+    """Branch point of cycles, detected by the bordered determinant (which
+    tells it from a fold) and localised on ``log μ`` of the real multiplier
+    crossing +1.
+
+    All multipliers of a collocation orbit are cheap and exact for the
+    discrete system, whose branch point is exactly where one crosses +1;
+    ``log μ`` is smooth there, whereas the determinant of the nearly
+    singular bordered matrix is only as smooth as the corrector's
+    solution, which is ill-determined along the null direction near the
+    branch point. (The multiplier moves by 210 per unit ν at the branch
+    point of AUTO's ``tor`` demo: the determinant left it 1.3e-6 from 1.)
+    """
+
+    def localiser(self, ctx0: Any, ctx1: Any, j: int) -> Any:
+        base = super().localiser(ctx0, ctx1, j)
+        if not self._dense(ctx0):
+            return base
+        a, b = self._real(ctx0).real, self._real(ctx1).real
+        pairs = [(u, v) for u in a for v in b if np.log(u) * np.log(v) < 0]
+        if not pairs:
+            return base
+        u, v = min(pairs, key=lambda t: abs(np.log(t[0])) + abs(np.log(t[1])))
+        lo, hi = 0.9 * min(u, v), 1.1 * max(u, v)
+
+        def g(ctx: Any) -> float:
+            c = self._real(ctx).real
+            c = c[(c >= lo) & (c <= hi)]
+            if c.size == 0:
+                return float("nan")
+            return float(np.log(c[int(np.argmin(np.abs(np.log(c))))]))
+
+        return g
