@@ -837,22 +837,32 @@ class CollocationBranchPointEvent(CycleBranchPointEvent):
     solution, which is ill-determined along the null direction near the
     branch point. (The multiplier moves by 210 per unit ν at the branch
     point of AUTO's ``tor`` demo: the determinant left it 1.3e-6 from 1.)
+    When the step also holds a fold (``τ_p`` changes sign: the fold's
+    multiplier crosses +1 as well) or no single multiplier crosses, the
+    determinant is localised as for any dense problem.
     """
 
     def localiser(self, ctx0: Any, ctx1: Any, j: int) -> Any:
         base = super().localiser(ctx0, ctx1, j)
         if not self._dense(ctx0):
             return base
-        a, b = self._real(ctx0).real, self._real(ctx1).real
-        pairs = [(u, v) for u in a for v in b if np.log(u) * np.log(v) < 0]
-        if not pairs:
+        if np.sign(ctx0.tangent[-1]) != np.sign(ctx1.tangent[-1]):
+            return base  # a fold in the same step: its multiplier crosses +1 too
+        a = np.sort(self._real(ctx0).real)
+        b = np.sort(self._real(ctx1).real)
+        if a.size != b.size:
             return base
+        # the real multipliers in order at both ends: the one changing side of +1
+        pairs = [(u, v) for u, v in zip(a, b, strict=True) if np.log(u) * np.log(v) < 0]
+        if len(pairs) != 1:
+            return base  # not one clear crossing: the determinant decides
         u, v = min(pairs, key=lambda t: abs(np.log(t[0])) + abs(np.log(t[1])))
         lo, hi = 0.9 * min(u, v), 1.1 * max(u, v)
 
         def g(ctx: Any) -> float:
             c = self._real(ctx).real
-            c = c[(c >= lo) & (c <= hi)]
+            inside = c[(c >= lo) & (c <= hi)]
+            c = inside if inside.size else c
             if c.size == 0:
                 return float("nan")
             return float(np.log(c[int(np.argmin(np.abs(np.log(c))))]))
