@@ -50,10 +50,10 @@ from numpy.typing import NDArray
 
 from contfil.engine.branch import PERIODIC_ORBIT
 from contfil.engine.events.cycles import CycleBranchPointEvent, cycle_events
-from contfil.engine.linalg.collocation_floquet import pencil_multipliers
-from contfil.engine.linalg.floquet import flag_trivial
 from contfil.engine.linalg.small_blocks import batched_lu, batched_lu_solve, condense_intervals
 from contfil.engine.problems.base import Problem, Stability, resolve_params
+from contfil.engine.problems.collocation_checks import check_orbit, orbit_stability, verify_orbit
+from contfil.engine.problems.collocation_events import CollocationBranchPointEvent, MeshTracker
 from contfil.engine.problems.collocation_mesh import (
     GaussTable,
     VectorField,
@@ -541,10 +541,13 @@ class CollocationProblem(Problem):
     def stability(self, x: Array, p: float, vectors: bool = True) -> Stability:
         """All Floquet multipliers from the transfer blocks (pencil reduction).
 
-        ``info["trivial_distance"]`` is ``|μ_trivial - 1|`` (a health check of
-        the discretisation); ``info["mesh_error"]`` the largest local error
-        estimate of the polynomial. Raises :class:`ConvergenceError` naming
-        the failed check when the orbit is not resolved by the mesh.
+        ``info["trivial_distance"]`` is ``|μ_trivial - 1|``,
+        ``info["trivial_defect"]`` the trivial-multiplier check,
+        ``info["mesh_error"]`` the largest local error estimate; raises
+        :class:`~contfil.errors.ConvergenceError` naming the failed check when
+        the orbit is not resolved by the mesh (see
+        :mod:`.collocation_checks`). Eigenvectors (at ``u_0``) only with
+        ``vectors``.
         """
         x = np.asarray(x, dtype=float)
         key = self._key(x, p)
@@ -552,119 +555,19 @@ class CollocationProblem(Problem):
         if hit is not None and (hit.vectors is not None or not vectors):
             return hit
         self.stats["stability_calls"] += 1
-        blocks = self.full_transfer_blocks(x, p)
-        # The time-shift eigenvector f(u) is told apart by projection where the
-        # orbit is fastest: at a slow phase origin (near a saddle) f(u_0) lines
-        # up with the saddle's eigenvectors. The multipliers are the same at
-        # every mesh point; the eigenvectors returned are those at u_0.
-        U = self.split(x)[0]
-        fU = self.vf.f(U, self.params_at(p))
-        j = int(np.argmax(np.linalg.norm(fU, axis=1)))
-        mu_j, V_j = pencil_multipliers(np.concatenate([blocks[j:], blocks[:j]]))
-        flags, tinfo = flag_trivial(mu_j, V_j, self.trivial_directions(x, p, j))
-        if vectors and j > 0:
-            mu, V = pencil_multipliers(blocks)
-            trivial = np.zeros(mu.size, dtype=bool)
-            for k in np.flatnonzero(flags):
-                free = np.flatnonzero(~trivial)
-                trivial[free[int(np.argmin(np.abs(mu[free] - mu_j[k])))]] = True
-            tinfo["distance_from_one"] = float(np.max(np.abs(mu[trivial] - 1.0))) \
-                if trivial.any() else float("nan")
-        else:
-            mu, V, trivial = mu_j, (V_j if vectors else None), flags
-        amu = np.abs(mu)
-        # by modulus, pairs by the sign of Im (rounding only where it cannot overflow)
-        order = np.lexsort((-mu.imag, -np.where(amu < 1e200, np.round(np.minimum(amu, 1e200),
-                                                                          12), amu)))
-        mu, trivial = mu[order], trivial[order]
-        V = None if V is None else V[:, order]
-        T = float(x[-1])
-        s = self._solve(x, p)
-        _, err = mesh_monitor(self.table, self.h, s["K"], T)
-        # the time-shift mode interval by interval: Φ'_j f(u_j) = f(u_{j+1})
-        # for the flow; its defect is linear in the discretisation error, also
-        # at a fold, where |μ_trivial - 1| grows like its square root (Jordan
-        # pair), and it needs no product of blocks (no overflow)
-        moved = np.einsum("jab,jb->ja", self.transfer_blocks(x, p), fU)
-        defect = float(np.max(np.abs(moved - np.roll(fU, -1, axis=0)))
-                       / max(float(np.max(np.abs(fU))), 1e-300))
-        info: dict[str, Any] = {"trivial_info": tinfo, "method": "collocation",
-                                "trivial_distance": float(tinfo.get("distance_from_one", np.nan)),
-                                "trivial_defect": defect,
-                                "mesh_error": float(np.max(err))}
-        with np.errstate(all="ignore"):
-            info["exponents"] = np.log(mu.astype(complex)) / T
-        st = Stability(values=mu, kind="multipliers", trivial=trivial, vectors=V,
-                       residual=float("nan"), info=info)
-        self._check(x, p, st)
+        st = orbit_stability(self, x, p, vectors)
+        check_orbit(self, x, p, st)
         self._remember(self.records, x[: self.dim].tobytes(),
                        (x.copy(), self.tau.copy(), float(p)), 4096)
         return self._remember(self._stab, key, st, 8)
 
-    def _check(self, x: Array, p: float, st: Stability) -> None:
-        info = st.info
-        where = f"{self.param}={p:.10g}, T={float(x[-1]):.6g}"
-        hint = (f"increase ntst (now {self.ntst})" + ("" if self.adapt else " or set adapt=True")
-                + " or take smaller steps (ds_max)")
-        dist = info["trivial_defect"]
-        if not (dist <= self.trivial_tol):
-            raise ConvergenceError(
-                f"collocation: orbit at {where} fails the trivial-multiplier check: the "
-                f"time-shift mode f(u) is not carried into itself, max_j |Φ'_j f(u_j) - "
-                f"f(u_j+1)| / max|f| = {dist:.3g} > trivial_tol = {self.trivial_tol:g} "
-                f"(|μ_trivial - 1| = {info['trivial_distance']:.3g}); the mesh does not "
-                f"resolve the orbit: {hint}")
-        if self.verify > 0 and self.stats["stability_calls"] % self.verify == 0:
-            info.update(self.verify_orbit(x, p))
-            scale = 1.0 + float(np.max(np.abs(x[:-1])))
-            if not (info["interval_defect"] <= self.verify_tol * scale):
-                raise ConvergenceError(
-                    f"collocation: orbit at {where} fails the independent-integration check: "
-                    f"pseudo-orbit defect {info['interval_defect']:.3g} > "
-                    f"verify_tol = {self.verify_tol:g} (DOP853); {hint}")
-
     def verify_orbit(self, x: Array, p: float, rtol: float = 1e-11) -> dict[str, float]:
-        """Independent DOP853 checks of an orbit (scipy, tight tolerances).
+        """Independent DOP853 checks of an orbit (:func:`.collocation_checks.verify_orbit`)."""
+        return verify_orbit(self, x, p, rtol)
 
-        ``interval_defect``: the orbit is cut into pieces of physical length
-        at most ``1/|∂f/∂u|`` (so an integration error grows by at most a
-        factor ``e`` over a piece) and each piece is integrated from the
-        collocation polynomial's value at its start, all pieces at once as
-        one vectorised system: ``max_k |φ_{Δt_k}(u(t_k)) - u(t_{k+1})|``. A
-        pseudo-orbit with small defects lies near a true orbit (shadowing),
-        also where the period is long and the multipliers huge.
-        ``periodicity_residual``: ``|φ_T(u_0) - u_0|`` over the whole period,
-        meaningful only while the multipliers are moderate (it amplifies any
-        error by the largest one); ``max_multiplier_for_periodicity`` says by how much.
-        """
-        from scipy.integrate import solve_ivp
-
-        x = np.asarray(x, dtype=float)
-        U, T = self.split(x)
-        q = self.params_at(p)
-        d = self.dim
-        s = self._solve(x, p)
-        Jn = np.linalg.norm(self.vf.jac(s["Y"], q), ord=2, axis=(-2, -1)).max(axis=1)
-        k = np.maximum(1, np.ceil(self.h * T * Jn)).astype(int)
-        t = np.concatenate([self.tau[j] + self.h[j] * np.arange(k[j]) / k[j]
-                            for j in range(self.ntst)] + [[1.0]])
-        u, _ = self.evaluate(x, p, t)
-        u[-1] = U[0]
-        dt = np.diff(t) * T
-        m = dt.size
-
-        def rhs_all(_: float, z: Array) -> Array:
-            return (dt[:, None] * self.vf.f(z.reshape(m, d), q)).ravel()
-
-        sol = solve_ivp(rhs_all, (0.0, 1.0), u[:-1].ravel(), method="DOP853", rtol=rtol,
-                        atol=rtol * 1e-2)
-        end = sol.y[:, -1].reshape(m, d)
-        defect = float(np.max(np.abs(end - u[1:])))
-        one = solve_ivp(lambda _, v: self.vf.f(v[None, :], q)[0], (0.0, T), U[0],
-                        method="DOP853", rtol=rtol, atol=rtol * 1e-2)
-        per = float(np.max(np.abs(one.y[:, -1] - U[0])))
-        return {"interval_defect": defect, "periodicity_residual": per,
-                "verify_pieces": float(m)}
+    def receive_tangent(self, tangent: Array, X: Array) -> None:
+        """Hand-over of the driver's tangent at an accepted point (:class:`MeshTracker`)."""
+        self._tangent = (tangent, X)
 
     # ------------------------------------------------------------- mesh
     def accept(self, x: Array, p: float) -> None:
@@ -791,80 +694,3 @@ class CollocationProblem(Problem):
             self._warm = self._minv = None
         return x.copy(), p
 
-
-class MeshTracker:
-    """A silent event that hands the driver's tangent at each accepted point to
-    its :class:`CollocationProblem`, so a remesh in ``accept`` can carry the
-    tangent over to the new mesh (the driver has no remesh hook; this uses
-    only the event interface). It never detects anything. Part of
-    :meth:`CollocationProblem.default_events`; keep it in a custom event list
-    (``[*my_events, MeshTracker()]``) when the mesh adapts.
-    """
-
-    name = "collocation_mesh"
-    kind = ""
-    needs_stability = False
-    suppressed_by: tuple[str, ...] = ()
-
-    def values(self, ctx: Any) -> Array:
-        return np.zeros(0)
-
-    def crossed(self, v0: Array, v1: Array) -> list[int]:
-        return []
-
-    def localiser(self, ctx0: Any, ctx1: Any, j: int) -> Any:  # never called
-        raise NotImplementedError
-
-    def special_point_data(self, ctx: Any, j: int, ctx0: Any, ctx1: Any) -> None:
-        return None
-
-    def accepted(self, ctx: Any, values: Array) -> Array:
-        pb = ctx.problem
-        if isinstance(pb, CollocationProblem):
-            pb._tangent = (ctx.tangent, ctx.X)
-        return values
-
-
-class CollocationBranchPointEvent(CycleBranchPointEvent):
-    """Branch point of cycles, detected by the bordered determinant (which
-    tells it from a fold) and localised on ``log μ`` of the real multiplier
-    crossing +1.
-
-    All multipliers of a collocation orbit are cheap and exact for the
-    discrete system, whose branch point is exactly where one crosses +1;
-    ``log μ`` is smooth there, whereas the determinant of the nearly
-    singular bordered matrix is only as smooth as the corrector's
-    solution, which is ill-determined along the null direction near the
-    branch point. (The multiplier moves by 210 per unit ν at the branch
-    point of AUTO's ``tor`` demo: the determinant left it 1.3e-6 from 1.)
-    When the step also holds a fold (``τ_p`` changes sign: the fold's
-    multiplier crosses +1 as well) or no single multiplier crosses, the
-    determinant is localised as for any dense problem.
-    """
-
-    def localiser(self, ctx0: Any, ctx1: Any, j: int) -> Any:
-        base = super().localiser(ctx0, ctx1, j)
-        if not self._dense(ctx0):
-            return base
-        if np.sign(ctx0.tangent[-1]) != np.sign(ctx1.tangent[-1]):
-            return base  # a fold in the same step: its multiplier crosses +1 too
-        a = np.sort(self._real(ctx0).real)
-        b = np.sort(self._real(ctx1).real)
-        if a.size != b.size:
-            return base
-        # the real multipliers in order at both ends: the one changing side of +1
-        pairs = [(u, v) for u, v in zip(a, b, strict=True) if np.log(u) * np.log(v) < 0]
-        if len(pairs) != 1:
-            return base  # not one clear crossing: the determinant decides
-        u, v = min(pairs, key=lambda t: abs(np.log(t[0])) + abs(np.log(t[1])))
-        lo, hi = 0.9 * min(u, v), 1.1 * max(u, v)
-
-        def g(ctx: Any) -> float:
-            c = self._real(ctx).real
-            inside = c[(c >= lo) & (c <= hi)]
-            c = inside if inside.size else c
-            if c.size == 0:
-                return float("nan")
-            return float(np.log(c[int(np.argmin(np.abs(np.log(c))))]))
-
-        return g
