@@ -65,7 +65,16 @@ class CollocationBranchPointEvent(CycleBranchPointEvent):
     When the step also holds a fold (``τ_p`` changes sign: the fold's
     multiplier crosses +1 as well) or no single multiplier crosses, the
     determinant is localised as for any dense problem.
+
+    A localised point whose multipliers are trustworthy (the trivial one
+    within ``trust`` of 1) but have none within ``max(0.02, 10 |μ_trivial -
+    1|)`` of +1 is no branch point of cycles and is rejected; a fold detected
+    in the same step is then localised instead. (On the long-period part of
+    AUTO's ``tor`` branch the determinant changed sign in a step holding a
+    fold; the "branch point" it gave had its nearest multiplier at 0.94.)
     """
+
+    trust = 1e-2
 
     def localiser(self, ctx0: Any, ctx1: Any, j: int) -> Any:
         base = super().localiser(ctx0, ctx1, j)
@@ -93,3 +102,14 @@ class CollocationBranchPointEvent(CycleBranchPointEvent):
             return float(np.log(c[int(np.argmin(np.abs(np.log(c))))]))
 
         return g
+
+    def special_point_data(self, ctx: Any, j: int, ctx0: Any, ctx1: Any) -> Any:
+        out = super().special_point_data(ctx, j, ctx0, ctx1)
+        if out is None:
+            return None
+        kind, data = out
+        dist = float(ctx.stability_with_vectors().info.get("trivial_distance", np.nan))
+        mu = data.get("multiplier")
+        if mu is not None and dist <= self.trust and abs(mu - 1.0) > max(0.02, 10.0 * dist):
+            return None
+        return kind, data
