@@ -185,3 +185,29 @@ def test_freire_branch_switching_to_torus_and_period_doubling(freire_auto_demo):
                          strict=True):
         assert sp.point.p == pytest.approx(nu, abs=1e-6)
         assert sp.point.extra["period"] == pytest.approx(T, abs=1e-5)
+
+
+def test_freire_long_period_folds_and_branch_point_at_auto_reference_values():
+    # AUTO's second run further out (test/hyper.all, demo tor, NTST 25):
+    #   LP -0.832514 (T 19.4158), BP -0.832438 (T 19.6365), LP -0.787590 (T 29.3732)
+    # Same mesh size as AUTO. ν to one unit in the printed digit as above; the
+    # periods to 1e-3: with 25 intervals on an orbit of period 20-30 the two
+    # programs' collocation errors are ~1e-4 (AUTO's own values differ from its
+    # printed digits by 2e-4 at T = 19.4).
+    m = freire_circuit(eps=0.0, **FREIRE_AUTO_DEMO)
+    eq = Continuation(EquilibriumProblem(m, "nu"), m.initial_state(None), -0.9,
+                      ContinuationSettings(ds=0.05, max_points=30, p_max=-0.55)).run()
+    hopf = next(sp for sp in eq.special_points if sp.kind == HOPF)
+    start = cycles_from_hopf(m, "nu", hopf, eps=0.01, ntst=25)
+    run = start.continuation(ContinuationSettings(ds=0.005, ds_max=0.02, max_points=300,
+                                                  p_min=-0.9, p_max=-0.4))
+    for pt in run:
+        if pt.extra["period"] > 30.0:
+            break
+    ev = [(sp.kind, sp.point.p, sp.point.extra["period"]) for sp in _events(run.branch)]
+    assert [k for k, _, _ in ev] == [CYCLE_FOLD, CYCLE_BRANCH_POINT, CYCLE_FOLD,
+                                     CYCLE_BRANCH_POINT, CYCLE_FOLD]
+    for (kind, nu, T), (nu_a, T_a) in zip(ev[2:], ((-0.832514, 19.4158), (-0.832438, 19.6365),
+                                                   (-0.787590, 29.3732)), strict=True):
+        assert nu == pytest.approx(nu_a, abs=1e-6), kind
+        assert T == pytest.approx(T_a, abs=1e-3), kind
