@@ -115,13 +115,15 @@ def condense_intervals(J: Array, K: Array, h: Array, T: float, A: Array, b: Arra
     n = m * d
     M = np.zeros((N, n, n))
     R = np.zeros((N, n, d + 2))
+    AK = np.zeros(d)
     for j in range(N):
         hT = h[j] * T
         for i in range(m):
-            AK = np.zeros(d)
-            for k in range(m):
-                for a in range(d):
-                    AK[a] += A[i, k] * K[j, k, a]
+            for a in range(d):
+                acc = 0.0
+                for k in range(m):
+                    acc += A[i, k] * K[j, k, a]
+                AK[a] = acc
             for a in range(d):
                 r = i * d + a
                 M[j, r, r] += 1.0
