@@ -29,6 +29,17 @@ the bifurcation. Folds need no switching: pseudo-arclength passes them.
   broken symmetry.
 - Period doubling: ``u* + ε v`` (eigenvector of ``μ = -1``), period ``2T``
   (:func:`cycles_from_period_doubling`).
+
+Method. Cycles of plain ``f(u, p)`` models are computed by orthogonal
+collocation (:class:`~contfil.engine.problems.collocation.CollocationProblem`),
+of models with their own time-stepper (``model.flow``) by shooting
+(:class:`~contfil.engine.problems.shooting.PeriodicOrbitProblem`);
+``method="collocation" | "shooting"`` overrides, and passing ``steps`` (a
+shooting resolution) asks for shooting. Branch-point and period-doubling
+switches keep the method of the branch they start from. On a collocation
+branch the whole orbit of a special point is recovered from the problem
+(:meth:`CollocationProblem.restore`); the critical Floquet vector at the
+phase origin is carried along the orbit by the transfer blocks.
 """
 
 from __future__ import annotations
@@ -52,6 +63,7 @@ from contfil.engine.continuation.driver import Continuation, ContinuationSetting
 from contfil.engine.events.standard import normalise_phase
 from contfil.engine.linalg.hookstep import newton_hookstep
 from contfil.engine.problems.base import Problem
+from contfil.engine.problems.collocation import CollocationProblem
 from contfil.engine.problems.rotating_wave import RotatingWaveProblem
 from contfil.engine.problems.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
 from contfil.engine.switching.equilibria import branch_point_tangents, hopf_data, o2_hopf_modes
@@ -70,7 +82,23 @@ __all__ = [
     "cycles_from_period_doubling",
     "cycles_leaving_subspace",
     "x_from_point",
+    "cycle_method",
 ]
+
+METHODS = ("collocation", "shooting")
+
+
+def cycle_method(model: Model, method: str | None = None, steps: int | None = None) -> str:
+    """The periodic-orbit method for ``model``: ``method`` if given; else
+    shooting for a model with its own ``flow`` or when ``steps`` (a shooting
+    resolution) is given, collocation otherwise."""
+    if method is not None:
+        if method not in METHODS:
+            raise ContfilError(f"cycle method must be one of {METHODS}, got {method!r}")
+        return method
+    if callable(getattr(model, "flow", None)) or steps is not None:
+        return "shooting"
+    return "collocation"
 
 
 @dataclass
@@ -141,9 +169,59 @@ def solve_with_amplitude(
         return np.concatenate([top, [d @ V[:n]]])
 
     X0 = np.concatenate([x_guess, [p_guess]])
+    if isinstance(problem, CollocationProblem):
+        return _direct_newton(problem, F, X0, d, tol, max_iter)
     X, info = newton_hookstep(F, X0, jvp=jvp, tol=tol, max_iter=max_iter,
                               name=f"first point of the new {problem.kind} branch")
     return X[:n], float(X[n]), info
+
+
+def _direct_newton(problem: CollocationProblem, F: Any, X0: Array, d: Array, tol: float,
+                   max_iter: int) -> tuple[Array, float, dict[str, Any]]:
+    """Newton with the bordered Jacobian ``[[G_x, G_p], [d̂ᵀ, 0]]`` factorised
+    directly (dense or sparse LU), halving the step while the residual grows."""
+    import scipy.sparse as sps
+    from scipy.sparse.linalg import splu
+
+    n = problem.n
+    X = X0.copy()
+    r = F(X)
+    evals = 1
+    for it in range(max_iter):
+        res = float(np.linalg.norm(r))
+        if res <= tol:
+            return X[:n], float(X[n]), {"iterations": it, "residual_evals": evals}
+        x, p = X[:n], float(X[n])
+        gp = problem.dp(x, p)
+        if problem.dense:
+            M = np.zeros((n + 1, n + 1))
+            M[:n, :n] = problem.jacobian(x, p)
+            M[:n, n] = gp
+            M[n, :n] = d
+            step = np.linalg.solve(M, r)
+        else:
+            M = sps.bmat([[problem.sparse_jacobian(x, p), sps.csr_matrix(gp.reshape(-1, 1))],
+                          [sps.csr_matrix(d.reshape(1, -1)), None]], format="csc")
+            step = splu(M).solve(r)
+        lam = 1.0
+        while True:
+            try:
+                Xn = X - lam * step
+                rn = F(Xn)
+                evals += 1
+                if np.all(np.isfinite(rn)) and np.linalg.norm(rn) < res * (1.0 - 0.25 * lam):
+                    break
+            except ContfilError:
+                pass
+            lam *= 0.5
+            if lam < 1e-3:
+                raise ConvergenceError(
+                    f"first point of the new {problem.kind} branch: Newton stalled at residual "
+                    f"{res:.3e} after {it} iterations (try a smaller eps or a finer mesh)")
+        X, r = Xn, rn
+    raise ConvergenceError(f"first point of the new {problem.kind} branch: no convergence "
+                           f"after {max_iter} Newton iterations (residual "
+                           f"{np.linalg.norm(r):.3e})")
 
 
 def _start(
@@ -152,7 +230,10 @@ def _start(
     x1, p1 = X1
     t = np.concatenate([x1, [p1]]) - X_star
     t = t / np.linalg.norm(t)
-    problem.accept(x1, p1)
+    if isinstance(problem, CollocationProblem):
+        problem.set_reference(x1, p1)  # no remesh here: it would not move the tangent
+    else:
+        problem.accept(x1, p1)
     return BranchStart(problem, x1, p1, t, info)
 
 
@@ -168,16 +249,23 @@ def cycles_from_hopf(
     *,
     params: Array | None = None,
     eps: float | None = None,
-    steps: int = 100,
+    steps: int | None = None,
+    method: str | None = None,
     **problem_kw: Any,
 ) -> BranchStart:
-    """First periodic orbit near a Hopf point, with its :class:`PeriodicOrbitProblem`.
+    """First periodic orbit near a Hopf point, with its periodic-orbit problem.
 
     The guess is ``u* + ε Re(v)/|Re v|`` (the orbit ``u* + ε' Re(v e^{iωt})``
     at phase 0), ``T = 2π/ω``; the amplitude ``<Re v̂, u - u*> = ε`` is fixed
     and ``p`` solved for, so the side of the branch (super/subcritical)
     comes from this solve: ``info["side"] = sign(p1 - p*)``.
     ``eps`` defaults to ``0.05 (1 + |u*|)``.
+
+    ``method`` (see :func:`cycle_method`): ``"collocation"`` builds a
+    :class:`CollocationProblem` (``problem_kw``: ``ntst``, ``ncol``, ...)
+    seeded with ``u* + ε Re(v̂ e^{2πiτ})`` at the mesh points, the amplitude
+    fixed along that whole mode; ``"shooting"`` a :class:`PeriodicOrbitProblem`
+    with ``steps`` (default 100) per period.
     """
     if hopf.kind not in (HOPF, DOUBLE_HOPF):
         raise ContfilError(f"cycles_from_hopf needs a Hopf point, got {hopf.kind!r}")
@@ -187,15 +275,33 @@ def cycles_from_hopf(
     d = _unit_real(v.real)
     e = float(eps) if eps is not None else 0.05 * (1.0 + float(np.linalg.norm(u_s)))
     base = np.asarray(params if params is not None else hd["params"], dtype=float)
-    pb = PeriodicOrbitProblem(model, param, base, steps=steps, **problem_kw)
-    u0 = u_s + e * d
     T0 = 2 * np.pi / abs(om)
+    if cycle_method(model, method, steps) == "collocation":
+        cp = CollocationProblem(model, param, base, **problem_kw)
+        vh = v / np.linalg.norm(v.real)
+        # u(τ) = u* + ε Re(v̂ e^{2πiτ}) solves the linearisation (A v = iω v, ωt = 2πτ)
+        mode = np.real(vh[None, :] * np.exp(2j * np.pi * cp.tau[:-1])[:, None])
+        if om < 0:
+            mode = np.real(vh[None, :] * np.exp(-2j * np.pi * cp.tau[:-1])[:, None])
+        dx = np.concatenate([mode.ravel(), [0.0]])
+        x_star = np.concatenate([np.tile(u_s, cp.ntst), [T0]])
+        xg = x_star + e * dx
+        cp.set_reference(xg, p_s)
+        e_eff = e * float(np.linalg.norm(dx))
+        x1, p1, info = solve_with_amplitude(cp, xg, p_s, x_star, dx, e_eff)
+        return _start(cp, (x1, p1), np.concatenate([x_star, [p_s]]), {
+            "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "method": "collocation",
+            "side": float(np.sign(p1 - p_s)), "newton_iterations": info["iterations"],
+            "residual_evals": info["residual_evals"]})
+    pb = PeriodicOrbitProblem(model, param, base, steps=100 if steps is None else steps,
+                              **problem_kw)
+    u0 = u_s + e * d
     pb.set_reference(u0, p_s)
     x_star = np.concatenate([u_s, [T0]])
     dx = np.concatenate([d, [0.0]])
     x1, p1, info = solve_with_amplitude(pb, np.concatenate([u0, [T0]]), p_s, x_star, dx, e)
     return _start(pb, (x1, p1), np.concatenate([x_star, [p_s]]), {
-        "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e,
+        "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "method": "shooting",
         "side": float(np.sign(p1 - p_s)), "newton_iterations": info["iterations"],
         "residual_evals": info["residual_evals"]})
 
@@ -278,7 +384,8 @@ def standing_wave_from_double_hopf(
     eps: float | None = None,
     symmetry_index: int = 0,
     subspace: str | None = None,
-    steps: int = 100,
+    steps: int | None = None,
+    method: str | None = None,
     **problem_kw: Any,
 ) -> BranchStart:
     """First standing wave from an O(2) double Hopf point.
@@ -288,7 +395,11 @@ def standing_wave_from_double_hopf(
     :class:`RelativePeriodicOrbitProblem` (the drift θ converges to 0), or,
     with ``subspace``, as a :class:`PeriodicOrbitProblem` in that invariant
     subspace's reduced model (the standing mode is then chosen inside the
-    subspace); stability is always computed in the full model.
+    subspace); stability is always computed in the full model. With
+    ``method="collocation"`` (the default for a model without ``flow`` when
+    ``steps`` is not given) the subspace solve is a :class:`CollocationProblem`
+    seeded with ``u* + ε Re(ŝ e^{2πiτ})``; collocation has no drift unknown,
+    so it needs ``subspace``.
     """
     hd, L = _o2_modes(model, hopf, symmetry_index)
     modes = hd["modes"]
@@ -309,6 +420,31 @@ def standing_wave_from_double_hopf(
     base = np.asarray(params if params is not None else hd["params"], dtype=float)
     T0 = 2 * np.pi / abs(om)
     u0 = u_s + e * d
+    if cycle_method(model, method, steps) == "collocation":
+        if subspace is None:
+            raise ContfilError(
+                "standing waves by collocation need an invariant subspace (subspace=...): in "
+                "the full space the rotated copies make the collocation system singular; or "
+                "use method='shooting' (relative periodic orbit)")
+        sub = model.symmetries.invariant_subspaces[subspace]
+        cp = CollocationProblem(model, param, base, subspace=subspace, **problem_kw)
+        sh = s / np.linalg.norm(s.real)
+        sgn = 1.0 if om > 0 else -1.0
+        wave = np.real(sh[None, :] * np.exp(sgn * 2j * np.pi * cp.tau[:-1])[:, None])
+        proj = lambda w: np.asarray(sub.project(w), dtype=float)  # noqa: E731
+        ur_s = proj(u_s)
+        mode = np.array([proj(u_s + w) - ur_s for w in wave])
+        dx = np.concatenate([mode.ravel(), [0.0]])
+        x_star = np.concatenate([np.tile(ur_s, cp.ntst), [T0]])
+        xg = x_star + e * dx
+        cp.set_reference(xg, p_s)
+        x1, p1, info = solve_with_amplitude(cp, xg, p_s, x_star, dx,
+                                            e * float(np.linalg.norm(dx)))
+        return _start(cp, (x1, p1), np.concatenate([x_star, [p_s]]), {
+            "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "subspace": subspace,
+            "method": "collocation", "side": float(np.sign(p1 - p_s)),
+            "newton_iterations": info["iterations"]})
+    steps = 100 if steps is None else steps
     if subspace is not None:
         sub = model.symmetries.invariant_subspaces[subspace]
         pb: PeriodicOrbitProblem = PeriodicOrbitProblem(model, param, base, steps=steps,
@@ -338,6 +474,8 @@ def x_from_point(problem: Problem, sp: SpecialPoint) -> Array:
     pt = sp.point
     if "x" in sp.data:
         return np.asarray(sp.data["x"], dtype=float)
+    if isinstance(problem, CollocationProblem):
+        return _collocation_x(problem, sp)
     u = np.asarray(pt.u, dtype=float)
     if isinstance(problem, PeriodicOrbitProblem):
         if problem.subspace is not None:
@@ -351,8 +489,41 @@ def x_from_point(problem: Problem, sp: SpecialPoint) -> Array:
     return u
 
 
+def _collocation_x(problem: CollocationProblem, sp: SpecialPoint) -> Array:
+    """The whole orbit of a special point of a collocation branch: from the
+    problem's record (which also restores the mesh it was computed on), else
+    rebuilt from the phase-origin state by a DOP853 integration over one
+    period and re-solved."""
+    got = problem.restore(sp.point.u)
+    if got is not None:
+        return got[0]
+    from scipy.integrate import solve_ivp
+
+    q = problem.params_at(float(sp.point.p))
+    T = float(sp.point.extra["period"])
+    f = problem.vf.f
+    sol = solve_ivp(lambda _, u: f(u[None, :], q)[0], (0.0, T), np.asarray(sp.point.u, float),
+                    method="DOP853", rtol=1e-10, atol=1e-12, dense_output=True)
+    t = np.linspace(0.0, T, 20 * problem.ntst + 1)
+    x = problem.x_from_samples(t, sol.sol(t).T, period=T)
+    problem.set_reference(x, float(sp.point.p))
+    return problem.correct(x, float(sp.point.p), tol=1e-9)
+
+
+def _along_orbit(problem: CollocationProblem, x: Array, p: float, v: Array) -> Array:
+    """Mesh values of the Floquet solution through ``v`` at the phase origin
+    (``v_{j+1} = ∂Φ_j/∂u_j v_j``), scaled to unit maximum."""
+    B = problem.transfer_blocks(x, p)
+    out = np.empty((problem.ntst, problem.dim))
+    w = np.asarray(v, dtype=float)
+    for j in range(problem.ntst):
+        out[j] = w
+        w = B[j] @ w
+    return out / np.max(np.abs(out))
+
+
 def cycles_from_branch_point(
-    problem: PeriodicOrbitProblem,
+    problem: PeriodicOrbitProblem | CollocationProblem,
     sp: SpecialPoint,
     *,
     eps: float = 0.05,
@@ -390,12 +561,17 @@ def cycles_from_branch_point(
     # at the point itself is not determined, see BranchPointEvent)
     t1 = sp.data.get("tangent_in", sp.data.get("tangent"))
     abe: dict[str, Any] = {}
-    if t2 is not None:
+    colloc = isinstance(problem, CollocationProblem)
+    ref = x_bp if colloc else x_bp[: problem.dim]
+    if t2 is not None and len(t2) == n + 1:
         dx = np.asarray(t2[:n], dtype=float)
-        if t1 is not None and problem.dense:
-            problem.set_reference(x_bp[: problem.dim], p_bp)
+        if t1 is not None and problem.dense and len(t1) == n + 1:
+            problem.set_reference(ref, p_bp)
             _, d, abe = branch_point_tangents(problem, x_bp, p_bp, np.asarray(t1, dtype=float))
             dx = d[:n]
+    elif sp.data.get("v_re") is not None and colloc:
+        v = _off_trivial(problem, x_bp, p_bp, np.asarray(sp.data["v_re"], dtype=float))
+        dx = np.concatenate([_along_orbit(problem, x_bp, p_bp, v).ravel(), [0.0]])
     elif sp.data.get("v_re") is not None:
         v = np.asarray(sp.data["v_re"], dtype=float)
         if problem.subspace is not None:
@@ -407,7 +583,7 @@ def cycles_from_branch_point(
     else:
         raise ContfilError("cycle branch point without tangent2 or eigenvector data")
     dx = side * dx / np.linalg.norm(dx)
-    problem.set_reference(x_bp[: problem.dim], p_bp)
+    problem.set_reference(ref, p_bp)
     x1, p1, info = solve_with_amplitude(problem, x_bp + eps * dx, p_bp, x_bp, dx, eps)
     return _start(problem, (x1, p1), np.concatenate([x_bp, [p_bp]]), {
         "from": sp.kind, "p_star": p_bp, "eps": eps, "side": float(np.sign(p1 - p_bp)),
@@ -511,6 +687,8 @@ def cycles_from_period_doubling(
         )
     if sp.data.get("v_re") is None:
         raise ContfilError("period-doubling point without its critical eigenvector")
+    if isinstance(problem, CollocationProblem):
+        return _collocation_period_doubling(problem, sp, eps, side)
     if type(problem) is not PeriodicOrbitProblem or problem.subspace is not None:
         raise ContfilError("cycles_from_period_doubling supports full-space PeriodicOrbitProblem")
     x_pd = x_from_point(problem, sp)
@@ -530,3 +708,35 @@ def cycles_from_period_doubling(
     return _start(new, (x1, p1), np.concatenate([x_star, [p_pd]]), {
         "from": sp.kind, "p_star": p_pd, "eps": eps, "side": float(np.sign(p1 - p_pd)),
         "newton_iterations": info["iterations"]})
+
+
+def _collocation_period_doubling(problem: CollocationProblem, sp: SpecialPoint, eps: float,
+                                 side: int) -> BranchStart:
+    """Doubled orbit on a doubled mesh (``2 ntst`` intervals, the old mesh
+    twice), seeded with ``±ε`` times the ``μ = -1`` Floquet solution (which
+    changes sign over one period)."""
+    x_pd = x_from_point(problem, sp)
+    p_pd = float(sp.point.p)
+    U, T = problem.split(x_pd)
+    v = _along_orbit(problem, x_pd, p_pd, np.asarray(sp.data["v_re"], dtype=float)) * side
+    tau = problem.tau
+    mesh = np.concatenate([0.5 * tau, 0.5 + 0.5 * tau[1:]])
+    new = CollocationProblem(problem.model, problem.param, problem.base_params,
+                             ntst=2 * problem.ntst, ncol=problem.ncol, mesh=mesh,
+                             adapt=problem.adapt, remesh_ratio=problem.remesh_ratio,
+                             trivial_tol=problem.trivial_tol, verify=problem.verify,
+                             verify_tol=problem.verify_tol,
+                             dense_threshold=problem.dense_threshold,
+                             period_means=problem.period_means)
+    new.vf = problem.vf
+    x_star = np.concatenate([U.ravel(), U.ravel(), [2 * T]])
+    dx = np.concatenate([v.ravel(), -v.ravel(), [0.0]])
+    dx /= np.linalg.norm(dx)
+    new.set_reference(x_star + eps * dx, p_pd)
+    try:
+        x1, p1, info = solve_with_amplitude(new, x_star + eps * dx, p_pd, x_star, dx, eps)
+    except ConvergenceError as exc:
+        raise ConvergenceError(f"period-doubled branch: {exc}") from exc
+    return _start(new, (x1, p1), np.concatenate([x_star, [p_pd]]), {
+        "from": sp.kind, "p_star": p_pd, "eps": eps, "side": float(np.sign(p1 - p_pd)),
+        "method": "collocation", "newton_iterations": info["iterations"]})
