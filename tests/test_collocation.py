@@ -275,7 +275,7 @@ def test_lorenz_branch_towards_the_homoclinic_orbit_is_a_true_orbit():
     assert pt.extra["period"] > 20.0
     assert pt.p == pytest.approx(13.9266, abs=5e-5)
     assert pb.stats["remeshes"] >= 3
-    x, _ = pb.restore(pt.u)
+    x, _ = pb.orbit_at(pt.u)
     v = pb.verify_orbit(x, pt.p)
     assert v["interval_defect"] < 1e-5 * (1 + np.max(np.abs(x)))
     checked = [q.extra["interval_defect"] for q in run.branch.points
@@ -303,7 +303,7 @@ def test_lorenz_branch_reaches_period_500():
     assert pt.extra["period"] > 500.0
     assert pt.p == pytest.approx(13.9266, abs=5e-5)  # AUTO: 13.9266 at T = 585
     assert max(q.extra["trivial_defect"] for q in run.branch.points) < 1e-6
-    x, p = start.problem.restore(pt.u)  # the orbit of that point, on its mesh
+    x, p = start.problem.orbit_at(pt.u)  # the orbit of that point, on its mesh
     assert p == pt.p
     v = start.problem.verify_orbit(x, p)
     assert v["interval_defect"] < 1e-4 * (1 + np.max(np.abs(x)))
@@ -329,7 +329,7 @@ def test_start_from_a_time_series_lor_dat_case():
                                         p_max=30.0))
     pt = br.points[-1]
     pb0 = start.problem
-    x = pb0.restore(pt.u)[0]
+    x = pb0.orbit_at(pt.u)[0]
     t, u = pb0.orbit(x, pt.p, per_interval=6)
     rng = np.random.default_rng(0)
     u = u + 1e-3 * rng.standard_normal(u.shape)

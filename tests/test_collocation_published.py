@@ -146,7 +146,7 @@ def test_freire_fold_and_branch_point_at_auto_reference_values(freire_auto_demo)
         assert sp.point.extra["period"] == pytest.approx(T, abs=1e-5)
     # AUTO's L2 norm sqrt(∫_0^1 |u|² dτ): from our quadrature, and from DOP853
     pb = start.problem
-    x, p = pb.restore(bp.point.u)
+    x, p = pb.orbit_at(bp.point.u)
     assert pb.observables(x, p)["l2_norm"] == pytest.approx(AUTO_BP_L2, abs=1e-6)
     q = m.default_params().copy()
     q[0] = bp.point.p

@@ -4,7 +4,8 @@ A run cut after ``k`` points and continued with ``Continuation.from_state``
 (after a JSON round trip of the state) gives the same points as the
 uninterrupted run, to 1e-12: equilibria, a whirling-type rotating wave whose
 shape changes along the branch (the phase reference of the last accepted
-point is restored, not the seed's) and a periodic orbit by shooting.
+point is restored, not the seed's), a periodic orbit by shooting and one by
+collocation on an adapting mesh.
 """
 
 from __future__ import annotations
@@ -74,7 +75,25 @@ def _po():
     return pb, np.array([ex["r"] * 1.1, 0.05, ex["period"] * 0.97]), 0.5
 
 
+def _colloc():
+    """A Stuart-Landau cycle by collocation, remeshed every 2 accepted points
+    (the mesh and the remesh counter travel with the state)."""
+    from scipy.integrate import solve_ivp
+
+    from contfil.engine.problems.collocation import CollocationProblem
+
+    ex = exact_cycle(0.5, b=0.3)
+    model = stuart_landau(mu=0.5, b=0.3)
+    pb = CollocationProblem(model, "mu", ntst=8, ncol=3, remesh_every=2)
+    T = ex["period"]
+    sol = solve_ivp(lambda t, u: model.rhs(u, model.default_params()), (0, T), [ex["r"], 0.0],
+                    t_eval=pb.tau[:-1] * T, rtol=1e-12, atol=1e-12)
+    return pb, np.concatenate([1.05 * sol.y.T.ravel(), [0.98 * T]]), 0.5
+
+
 CASES = {
+    "collocation": (_colloc, ContinuationSettings(ds=0.05, ds_max=0.1, max_points=8,
+                                                  p_max=1.0)),
     "equilibrium": (_eq, ContinuationSettings(ds=0.1, ds_max=0.3, max_points=12, p_max=1.0)),
     "rotating_wave": (_rw, ContinuationSettings(ds=0.05, ds_max=0.2, max_points=10, p_max=2.0)),
     "periodic_orbit": (_po, ContinuationSettings(ds=0.05, ds_max=0.1, max_points=6, p_max=1.0)),
@@ -100,8 +119,10 @@ def test_resume_from_state_equals_uninterrupted_run(case: str) -> None:
     head = list(first)
     state = ContinuationState.from_dict(json.loads(json.dumps(first.state.to_dict())))
     assert state.n_points == k and np.array_equal(state.X[-1:], [head[-1].p])
-    if case != "equilibrium":
+    if case in ("rotating_wave", "periodic_orbit"):
         assert "u_ref" in state.problem  # the phase reference travels with the state
+    if case == "collocation":
+        assert {"tau", "ref_Y", "accepted"} <= set(state.problem)
     pb2, _, _ = make()  # a fresh problem, as after a crash
     rest = list(Continuation.from_state(pb2, state, replace(s, max_points=len(full) - k + 1)))
     assert rest[0].accuracy["newton_iterations"] == 0  # the stored point is not re-corrected

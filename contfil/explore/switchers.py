@@ -65,10 +65,13 @@ def default_switchers(standing_subspace: str | None = "auto",
         return None if f is None else np.asarray(f(p), dtype=float)
 
     def cycle_kw(model: Any) -> dict[str, Any]:
-        # Time steps per period: a model may advertise its own resolution
-        # (the filament: the paper's T/400); period means give diagrams the
-        # paper's ordinate (mean over a period) at PERIOD_MEANS extra flows
-        # of length T/PERIOD_MEANS per point.
+        # A model with its own time-stepper (the filament) is shot at its
+        # advertised resolution (the paper's T/400), with period means giving
+        # diagrams the paper's ordinate (mean over a period) at PERIOD_MEANS
+        # extra flows of length T/PERIOD_MEANS per point. A plain f(u, p)
+        # model gets the engine's default for it: collocation.
+        if not callable(getattr(model, "flow", None)):
+            return {}
         return {
             "steps": int(getattr(model, "flow_steps_min", 100)),
             "period_means": PERIOD_MEANS,

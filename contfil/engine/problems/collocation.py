@@ -680,7 +680,30 @@ class CollocationProblem(Problem):
         cols = [np.interp(tt, s, u[:, i], period=1.0) for i in range(self.dim)]
         return np.concatenate([np.column_stack(cols).ravel(), [T]])
 
-    def restore(self, u0: Array) -> tuple[Array, float] | None:
+    def restart_data(self) -> dict[str, Array]:
+        """What a resumed run needs besides ``(x, p)`` and the tangent: the mesh,
+        the phase reference of the last accepted orbit and the remesh counter."""
+        out = {"tau": self.tau.copy(), "accepted": np.array([float(self._accepted)])}
+        if self.ref is not None:
+            out["ref_Y"] = self.ref["Y"].copy()
+            out["ref_D"] = self.ref["D"].copy()
+        return out
+
+    def restore(self, data: dict[str, Array]) -> None:
+        """Set back what :meth:`restart_data` returned, exactly (records
+        written before the mesh was stored carry nothing: keep the current)."""
+        if "tau" not in data:
+            return
+        tau = np.asarray(data["tau"], dtype=float)
+        if not np.array_equal(tau, self.tau):
+            self.tau = tau.copy()
+            self._warm = self._minv = None
+        self._accepted = int(np.asarray(data["accepted"]).ravel()[0])
+        if "ref_Y" in data:
+            self.ref = {"Y": np.array(data["ref_Y"], dtype=float),
+                        "D": np.array(data["ref_D"], dtype=float)}
+
+    def orbit_at(self, u0: Array) -> tuple[Array, float] | None:
         """The unknowns and parameter of a computed orbit whose phase-origin
         state is ``u0`` (as stored on a :class:`~contfil.engine.branch.Point`);
         the problem's mesh is set back to the one it was computed on. None if

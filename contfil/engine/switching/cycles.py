@@ -494,7 +494,7 @@ def _collocation_x(problem: CollocationProblem, sp: SpecialPoint) -> Array:
     problem's record (which also restores the mesh it was computed on), else
     rebuilt from the phase-origin state by a DOP853 integration over one
     period and re-solved."""
-    got = problem.restore(sp.point.u)
+    got = problem.orbit_at(sp.point.u)
     if got is not None:
         return got[0]
     from scipy.integrate import solve_ivp
