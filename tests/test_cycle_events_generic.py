@@ -35,6 +35,7 @@ from contfil.engine.events.cycles import (
 from contfil.engine.problems.base import Stability
 from contfil.engine.problems.multiple_shooting import MultipleShootingProblem
 from contfil.engine.problems.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
+from contfil.engine.switching.cycle_ends import branch_end_events
 from contfil.engine.switching.cycles import cycles_leaving_subspace
 from contfil.models.catalog.cycles_hopf import two_oscillators
 from contfil.protocol import FunctionModel, InvariantSubspace, Symmetries
@@ -235,9 +236,11 @@ def test_pitchfork_bubble_branch_ends_at_the_second_pitchfork():
     assert bps[0].data["broken_reflection"] == "flip_z"
     start = cycles_leaving_subspace(pb, bps[0], eps=0.05, side=1)
     assert start.info["side"] == 1.0  # the tilted cycles exist for beta > 0.3
+    events = branch_end_events(start)
+    assert [type(e) for e in events] == [SubspaceReentryEvent]
+    assert events[0].subspace == "plane"
     run = start.continuation(ContinuationSettings(ds=0.05, ds_max=0.05, max_points=40,
-                                                  p_max=1.0, event_tol=1e-10),
-                             events=[SubspaceReentryEvent("plane")])
+                                                  p_max=1.0, event_tol=1e-10), events=events)
     br = run.run()
     assert run.stop_reason == STOP_BRANCH_END
     end = next(sp for sp in br.special_points if sp.kind == "subspace_reentry")

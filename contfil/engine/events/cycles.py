@@ -45,6 +45,7 @@ from contfil.engine.branch import (
 )
 from contfil.engine.events.standard import BranchPointEvent, Event, EventContext, FoldEvent
 from contfil.engine.problems.base import Stability
+from contfil.errors import SpecError
 
 Array = NDArray[np.float64]
 
@@ -637,7 +638,6 @@ class SubspaceReentryEvent(Event):
         model = ctx.problem.model  # type: ignore[attr-defined]
         sub = model.symmetries.invariant_subspaces.get(self.subspace)
         if sub is None:
-            from contfil.errors import SpecError
             raise SpecError(f"SubspaceReentryEvent: model {model.name!r} has no invariant "
                             f"subspace {self.subspace!r}")
         U = np.asarray(ctx.problem.state(ctx.x), dtype=float)
