@@ -171,3 +171,31 @@ def test_restart_data_round_trip_and_bad_segments():
     np.testing.assert_array_equal(other.residual(x, 1.0), pb.residual(x, 1.0))
     with pytest.raises(SpecError, match="segments"):
         MultipleShootingProblem(m, "a", segments=0)
+
+
+def test_resume_from_state_equals_the_uninterrupted_run():
+    import json
+    from dataclasses import replace
+
+    from contfil.engine.continuation.state import ContinuationState
+
+    m = unstable_cycle_model()
+    s = ContinuationSettings(ds=0.2, ds_max=0.3, max_points=4, p_max=3.0)
+
+    def problem():
+        return MultipleShootingProblem(m, "a", segments=4, steps=80)
+
+    pb = problem()
+    x0 = pb.initial_guess(np.array([1.0, 0.0, 0.0]), _period(1.0), 1.0)
+    full = Continuation(pb, x0, 1.0, s).run()
+    run = Continuation(problem(), x0, 1.0, s)
+    next(run), next(run)
+    state = ContinuationState.from_dict(json.loads(json.dumps(run.state.to_dict())))
+    assert set(state.problem) == {"u_ref", "f_ref"}
+    rest = Continuation.from_state(problem(), state, replace(s, max_points=3)).run()
+    assert rest.points[0].accuracy["newton_iterations"] == 0  # not re-corrected
+    assert len(rest.points) == 3 and len(full.points) == 4
+    for a, b in zip(full.points[1:], rest.points, strict=True):
+        assert b.p == pytest.approx(a.p, abs=1e-12)
+        np.testing.assert_allclose(b.u, a.u, atol=1e-11)
+        assert b.extra["period"] == pytest.approx(a.extra["period"], abs=1e-12)
