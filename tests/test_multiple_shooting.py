@@ -199,3 +199,21 @@ def test_resume_from_state_equals_the_uninterrupted_run():
         assert b.p == pytest.approx(a.p, abs=1e-12)
         np.testing.assert_allclose(b.u, a.u, atol=1e-11)
         assert b.extra["period"] == pytest.approx(a.extra["period"], abs=1e-12)
+
+
+@pytest.mark.slow
+def test_matrix_free_newton_krylov_continuation():
+    """The same branch with GMRES on the cyclic system and Arnoldi on the
+    segment product (~20 s): period exact, the leading multiplier to 1e-8."""
+    m = unstable_cycle_model()
+    pb = MultipleShootingProblem(m, "a", segments=8, steps=200, dense_threshold=0, nev=2)
+    assert not pb.dense
+    br = Continuation(pb, _perturbed(pb, 1.0), 1.0,
+                      ContinuationSettings(max_points=3, ds=0.2, ds_max=0.3, p_max=2.0)).run()
+    assert len(br.points) == 3
+    for pt in br.points:
+        T = _period(pt.p)
+        assert pt.extra["period"] == pytest.approx(T, rel=1e-9)
+        lead = pt.eigenvalues[~pt.trivial][0].real
+        assert lead == pytest.approx(np.exp(LAM * T), rel=1e-8)
+        assert pt.n_unstable == 1
