@@ -68,7 +68,9 @@ def test_candidates_skip_trivial_complex_and_in_plane_modes():
     m = tilted_plane_model()
     sub = m.symmetries.invariant_subspaces["plane"]
     vals = np.array([1.0, 1.3, 0.7, 0.9 + 0.2j, 1.1], dtype=complex)
-    V = np.array([[1, 0, 0], [0, 0, 1], [0.1, 0, 1], [0, 1j, 1], [1, 0, 0.2]],
+    # the in-plane mode 1.1 is mostly in the plane once its part along the
+    # trivial e_x is set aside (classification is on the off-trivial part)
+    V = np.array([[1, 0, 0], [0, 0, 1], [0.1, 0, 1], [0, 1j, 1], [0.2, 1, 0.2]],
                  dtype=complex).T
     st = Stability(vals, kind="multipliers",
                    trivial=np.array([True, False, False, False, False]), vectors=V)
@@ -76,6 +78,11 @@ def test_candidates_skip_trivial_complex_and_in_plane_modes():
     # trivial 1.0, the complex pair and the in-plane 1.1 are not candidates
     assert idx == [1, 2]
     np.testing.assert_allclose(c, [1.3, 0.7])
+    # an out-of-plane mode polluted by the trivial direction (e_z + 5 e_x:
+    # raw fraction 0.98 in the plane) is a candidate
+    V[:, 4] = [5, 0, 1]
+    _, idx = subspace_breaking_multipliers(sub, st)
+    assert idx == [1, 2, 4]
 
 
 @pytest.mark.parametrize("dense_threshold", [40, 0], ids=["dense", "matrix_free"])

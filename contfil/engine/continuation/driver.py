@@ -32,6 +32,7 @@ from contfil.engine.continuation.localise import Accepted, Localiser
 from contfil.engine.continuation.points import make_point
 from contfil.engine.continuation.settings import DS_MIN_SLACK, ContinuationSettings
 from contfil.engine.continuation.state import (
+    STOP_BRANCH_END,
     STOP_ERROR,
     STOP_MAX_POINTS,
     STOP_P_MAX,
@@ -359,10 +360,17 @@ class Continuation:
         X, ctx, info, stop = self._land_on_bound(X0, tau0, X, ctx, info)
         pt = self._make_point(ctx, info, t0, evals0)
         rec = Accepted(X, ctx, pt)
-        new_special = self._detect(prev, rec) if self.events else []
+        new_special = sorted(self._detect(prev, rec) if self.events else [], key=lambda t: t[0])
+        # A terminal special point (``data["terminal"]``, e.g. the branch
+        # re-entered its parent's invariant subspace) ends the branch there:
+        # it becomes the last point, and what lies beyond it is dropped.
+        end = next((k for k, (_, sp) in enumerate(new_special) if sp.data.get("terminal")), None)
+        if end is not None:
+            new_special = new_special[: end + 1]
+            pt = new_special[end][1].point
         self.branch.points.append(pt)
         idx = len(self.branch.points) - 2
-        for _, sp in sorted(new_special, key=lambda t: t[0]):
+        for _, sp in new_special:
             sp.index = idx
             self.branch.special_points.append(sp)
         self._prev = rec
@@ -376,6 +384,8 @@ class Continuation:
                 self.ds = min(self.ds * s.grow, s.ds_max)
             elif info.iterations >= s.slow_iter:
                 self.ds = max(self.ds * s.slow_shrink, s.ds_min)
+        if end is not None:
+            stop = STOP_BRANCH_END
         if stop is None and len(self.branch.points) >= s.max_points:
             stop = STOP_MAX_POINTS
         if stop is not None:

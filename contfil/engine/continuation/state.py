@@ -22,6 +22,10 @@ Array = NDArray[np.float64]
 STOP_P_MAX = "p_max"
 STOP_P_MIN = "p_min"
 STOP_MAX_POINTS = "max_points"
+#: a terminal event ended the branch at a special point (the branch merged
+#: back into its parent: re-entered an invariant subspace, or a relative
+#: periodic orbit collapsed onto a rotating wave)
+STOP_BRANCH_END = "branch_end"
 #: the run raised (a :class:`~contfil.errors.StepFailure` or another
 #: :class:`~contfil.errors.ContfilError`)
 STOP_ERROR = "error"

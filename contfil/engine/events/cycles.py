@@ -33,9 +33,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.engine.branch import CYCLE_BRANCH_POINT, CYCLE_FOLD, PERIOD_DOUBLING, TORUS
+from contfil.engine.branch import (
+    BRANCH_POINT,
+    CYCLE_BRANCH_POINT,
+    CYCLE_FOLD,
+    DOUBLE_HOPF,
+    FOLD,
+    HOPF,
+    PERIOD_DOUBLING,
+    TORUS,
+)
 from contfil.engine.events.standard import BranchPointEvent, Event, EventContext, FoldEvent
 from contfil.engine.problems.base import Stability
+from contfil.errors import SpecError
 
 Array = NDArray[np.float64]
 
@@ -45,10 +55,26 @@ __all__ = [
     "PeriodDoublingEvent",
     "TorusEvent",
     "SubspaceBreakingEvent",
+    "StabilityChangeEvent",
+    "SubspaceReentryEvent",
+    "RotatingWaveCollapseEvent",
+    "STABILITY_CHANGE",
     "subspace_fraction",
     "subspace_breaking_multipliers",
+    "off_trivial",
+    "subspace_class",
     "cycle_events",
 ]
+
+#: Special-point kind of :class:`StabilityChangeEvent`: the unstable count
+#: changed in a step where no bifurcation event found anything.
+STABILITY_CHANGE = "stability_change"
+#: ``v`` whose part off the trivial span is below this fraction of ``|v|`` is
+#: a trivial direction (round-off level of the projection of a unit vector).
+OFF_TRIVIAL_FLOOR = 1e-13
+#: A mode whose eigenvector is this close to the trivial span cannot be
+#: placed in or out of an invariant subspace (see :func:`subspace_class`).
+UNCLASSIFIABLE = 1e-8
 
 
 def _nontrivial(st: Stability) -> tuple[NDArray[np.complex128], NDArray[np.intp]]:
@@ -88,6 +114,67 @@ def _critical_vector(st: Stability, target: complex) -> dict[str, Any]:
         v = v * np.exp(-1j * np.angle(v[j]))
         out["v_re"], out["v_im"] = v.real.copy(), v.imag.copy()
     return out
+
+
+def _trivial_basis(st: Stability) -> Array | None:
+    """Orthonormal real basis of the span of the trivial eigenvectors of ``st``."""
+    if st.trivial is None or st.vectors is None or not np.any(st.trivial):
+        return None
+    E = np.asarray(st.vectors)[:, np.asarray(st.trivial, dtype=bool)]
+    E = np.column_stack([E.real, E.imag])
+    U, sv, _ = np.linalg.svd(E, full_matrices=False)
+    if sv.size == 0 or sv[0] == 0.0:
+        return None
+    return U[:, : int(np.sum(sv > 1e-8 * sv[0]))]
+
+
+def off_trivial(st: Stability, v: NDArray) -> NDArray:
+    """``v`` without its part along the trivial eigenvectors of ``st``.
+
+    Why: near ``μ = 1`` the eigenvector of a multiplier crossing +1 is
+    polluted by the trivial directions. With ``M v = μ v + c e`` (``e`` =
+    ``f(u)`` or ``L u``, multiplier 1) the exact eigenvector is
+    ``v + c e / (μ - 1)``: it tends to ``e`` at the crossing. When ``e``
+    lies in an invariant subspace (``f`` of a planar orbit) an out-of-plane
+    mode then looks in-plane (``subspace_fraction`` 0.29-0.39 on the tip FF
+    beating pitchfork, and crossings went unreported). The bifurcating
+    direction is the part orthogonal to the trivial span; it is returned
+    unless ``v`` lies inside that span to round-off. (Right at the crossing
+    that part is only ``~|μ - 1|/c`` of ``v``, still far above round-off at
+    any ``|μ - 1|`` a localisation reaches; the deflated Floquet solver keeps
+    the compressed eigenvector, already free of the trivial part, when
+    ``μ`` is within round-off of a trivial multiplier.)
+    """
+    Q = _trivial_basis(st)
+    if Q is None:
+        return v
+    w = v - Q @ (Q.T @ v)
+    if np.linalg.norm(w) <= OFF_TRIVIAL_FLOOR * np.linalg.norm(v):
+        return v
+    return w
+
+
+def subspace_class(subspace: Any, st: Stability, k: int, threshold: float = 0.5) -> str:
+    """``"in"``, ``"out"`` or ``"unknown"``: where mode ``k`` of ``st`` lives.
+
+    Classified on the eigenvector without its trivial part
+    (:func:`off_trivial`): ``"out"`` when less than ``threshold`` of it lies
+    in ``subspace``. ``"unknown"`` when that part is below
+    ``UNCLASSIFIABLE`` of the eigenvector: the multiplier is then within
+    round-off of a trivial one (a localisation iterate right at the
+    crossing) and the vector no longer says where the mode lives; both the
+    in-subspace and the subspace-breaking tests keep such a mode as a
+    candidate, so neither loses the crossing it is localising.
+    """
+    if st.vectors is None:
+        return "unknown"
+    v = np.asarray(st.vectors[:, k])
+    w = off_trivial(st, v)
+    if w is v and st.trivial is not None and np.any(st.trivial):
+        return "unknown"
+    if np.linalg.norm(w) <= UNCLASSIFIABLE * np.linalg.norm(v):
+        return "unknown"
+    return "out" if subspace_fraction(subspace, w) < threshold else "in"
 
 
 class CycleFoldEvent(FoldEvent):
@@ -136,7 +223,7 @@ class CycleBranchPointEvent(BranchPointEvent):
         keep = _is_real(vals, self.imag_tol) & (vals.real > 0)
         if sub is not None and st.vectors is not None:
             # modes leaving the subspace belong to SubspaceBreakingEvent
-            inside = np.array([subspace_fraction(sub, st.vectors[:, k]) >= 0.5 for k in idx],
+            inside = np.array([subspace_class(sub, st, int(k)) != "out" for k in idx],
                               dtype=bool)
             keep &= inside
         return vals[keep]
@@ -279,15 +366,18 @@ def subspace_breaking_multipliers(subspace: Any, st: Stability, imag_tol: float 
     """Non-trivial real positive multipliers whose eigenvectors leave ``subspace``.
 
     Returns their values and their column indices in ``st``; a mode is
-    outside when less than ``threshold`` of its norm lies in the subspace
-    (without eigenvectors every real positive multiplier is a candidate).
+    outside when less than ``threshold`` of the norm of its eigenvector,
+    taken without its trivial part (:func:`off_trivial`), lies in the
+    subspace; a mode that cannot be placed (no eigenvectors, or within
+    round-off of a trivial multiplier: :func:`subspace_class`) is a
+    candidate too.
     """
     vals, idx = _nontrivial(st)
     out: list[int] = []
     for mu, k in zip(vals, idx, strict=True):
         if abs(mu.imag) > imag_tol * max(1.0, abs(mu)) or mu.real <= 0:
             continue
-        if st.vectors is None or subspace_fraction(subspace, st.vectors[:, k]) < threshold:
+        if subspace_class(subspace, st, int(k), threshold) != "in":
             out.append(int(k))
     return np.asarray(st.values, dtype=complex)[out].real, out
 
@@ -363,13 +453,30 @@ class SubspaceBreakingEvent(Event):
         if abs(np.log(c[k])) > 1e-4:
             return None
         sub = ctx.problem.subspace
-        v = np.asarray(st.vectors[:, idx[k]], dtype=complex)
+        raw = np.asarray(st.vectors[:, idx[k]], dtype=complex)
+        v, source = off_trivial(st, raw), "point"
+        if subspace_class(sub, st, idx[k], self.threshold) == "unknown":
+            # μ is within round-off of the trivial 1: the eigenvector here is
+            # the trivial direction. The bifurcating mode is the off-trivial
+            # eigenvector at the nearer accepted end (O(bracket) away).
+            for end in sorted((ctx0, ctx1), key=lambda e: abs(e.p - ctx.p)):
+                ce, ie, se = self._cands(end)
+                if ce.size == 0:
+                    continue
+                ke = ie[int(np.argmin(np.abs(np.log(ce))))]
+                if subspace_class(sub, se, ke, self.threshold) == "out":
+                    v, source = off_trivial(se, np.asarray(se.vectors[:, ke], complex)), end.p
+                    break
+        v = v / np.linalg.norm(v)
         v = v * np.exp(-1j * np.angle(v[int(np.argmax(np.abs(v)))]))
         data = {
             "multiplier": float(c[k]), "test_value": float(np.log(c[k])),
             "symmetry_breaking": f"leaves subspace {sub.name}",
-            "subspace_fraction": subspace_fraction(sub, v), "v_re": v.real.copy(),
-            "switchable": True,
+            # classified and handed to switching without the trivial part
+            # (see off_trivial); the raw eigenvector's fraction is kept
+            "subspace_fraction": subspace_fraction(sub, v),
+            "subspace_fraction_raw": subspace_fraction(sub, raw), "v_re": v.real.copy(),
+            "eigenvector_at": source, "switchable": True,
         }
         refl = _broken_reflection(ctx.problem, v.real)
         if refl is not None:
@@ -377,11 +484,284 @@ class SubspaceBreakingEvent(Event):
         return self.kind, data
 
 
+def _crossing_types(st: Stability, imag_tol: float) -> Array:
+    """``[n_unstable, real > +1 (or > 0), real < -1, complex]`` counts of the
+    non-trivial values (multipliers outside the unit circle, or eigenvalues
+    with positive real part)."""
+    vals, _ = _nontrivial(st)
+    real = _is_real(vals, imag_tol)
+    if st.kind == "multipliers":
+        out = np.abs(vals) > 1.0
+        pos, neg = real & (vals.real > 0), real & (vals.real < 0)
+    else:
+        out = vals.real > 0.0
+        pos, neg = real, np.zeros(vals.size, dtype=bool)
+    return np.array([float(st.n_unstable), float(np.sum(out & pos)), float(np.sum(out & neg)),
+                     float(np.sum(out & ~real))])
+
+
+_TYPE_NAMES = ("real_positive", "real_negative", "complex")
+
+
+class StabilityChangeEvent(Event):
+    """Safety net: the unstable count changed and no bifurcation was found.
+
+    At every accepted point the non-trivial multipliers (trivial ones set
+    apart by their eigenvectors, never by their distance to 1) outside the
+    unit circle are counted. When the count changes over a step in which no
+    other event localised a special point (``suppressed_by``: every
+    bifurcation kind), the crossing is localised here — on ``±|log|μ||`` of
+    the multiplier of the type whose count changed that is nearest the
+    circle, the sign given by the count, so the iteration stays bracketed —
+    and reported as ``STABILITY_CHANGE`` with ``crossing`` (``real_positive``,
+    ``real_negative``, ``complex``), ``multiplier``, ``count_before`` /
+    ``count_after``, the parameter bracket ``p_bracket``, the critical
+    eigenvector and, for an orbit solved in a subspace, its
+    ``subspace_fraction``. It is not switchable: it says that a
+    bifurcation test missed a crossing (e.g. a mode misclassified), and
+    where.
+    """
+
+    name = "stability_change"
+    kind = STABILITY_CHANGE
+    needs_stability = True
+    imag_tol = 1e-6
+    suppressed_by = (CYCLE_FOLD, CYCLE_BRANCH_POINT, PERIOD_DOUBLING, TORUS, FOLD,
+                     BRANCH_POINT, HOPF, DOUBLE_HOPF)
+
+    def values(self, ctx: EventContext) -> Array:
+        return _crossing_types(ctx.stability, self.imag_tol)
+
+    def crossed(self, v0: Array, v1: Array) -> list[int]:
+        return [0] if v0[0] != v1[0] else []
+
+    def _type(self, ctx0: EventContext, ctx1: EventContext) -> int:
+        d = self.values(ctx1)[1:] - self.values(ctx0)[1:]
+        return int(np.argmax(np.abs(d)))
+
+    def _distance(self, st: Stability, t: int) -> tuple[float, complex | None]:
+        vals, _ = _nontrivial(st)
+        real = _is_real(vals, self.imag_tol)
+        sel = [real & (vals.real > 0), real & (vals.real < 0), ~real][t]
+        if st.kind != "multipliers":
+            sel = [real, np.zeros(vals.size, bool), ~real][t]
+        c = vals[sel]
+        if c.size == 0:
+            return float("nan"), None
+        with np.errstate(divide="ignore"):
+            dist = np.abs(np.log(np.abs(c))) if st.kind == "multipliers" else np.abs(c.real)
+        k = int(np.argmin(dist))
+        return float(dist[k]), complex(c[k])
+
+    def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
+        left = self.values(ctx0)[0]
+        t = self._type(ctx0, ctx1)
+
+        def g(ctx: EventContext) -> float:
+            dist, _ = self._distance(ctx.stability, t)
+            return (-1.0 if self.values(ctx)[0] == left else 1.0) * dist
+
+        return g
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        t = self._type(ctx0, ctx1)
+        st = ctx.stability_with_vectors()
+        dist, mu = self._distance(st, t)
+        if mu is None:
+            return None
+        target = 1.0 if t == 0 else (-1.0 if t == 1 else mu)
+        data: dict[str, Any] = _critical_vector(st, target) if st.kind == "multipliers" else {}
+        data["multiplier" if st.kind == "multipliers" else "eigenvalue"] = mu
+        data.update({
+            "crossing": _TYPE_NAMES[t], "test_value": dist,
+            "count_before": int(self.values(ctx0)[0]), "count_after": int(self.values(ctx1)[0]),
+            "p_bracket": (ctx0.p, ctx1.p), "switchable": False,
+        })
+        sub = ctx.problem.subspace
+        if sub is not None and st.vectors is not None and st.kind == "multipliers":
+            # where the crossing mode lives; at a point within round-off of
+            # the trivial multiplier, from the nearer accepted end
+            for c in sorted((ctx, ctx0, ctx1), key=lambda e: (e is not ctx, abs(e.p - ctx.p))):
+                sc = c.stability_with_vectors()
+                vals, idx = _nontrivial(sc)
+                if vals.size == 0:
+                    continue
+                k = int(idx[int(np.argmin(np.abs(vals - target)))])
+                if subspace_class(sub, sc, k) != "unknown":
+                    w = off_trivial(sc, np.asarray(sc.vectors[:, k], dtype=complex))
+                    data["subspace_fraction"] = subspace_fraction(sub, w)
+                    data["subspace_fraction_at"] = c.p
+                    break
+        return self.kind, data
+
+
+class SubspaceReentryEvent(Event):
+    """End of a symmetry-broken branch: the orbit re-enters an invariant subspace.
+
+    A branch born at a symmetry-breaking pitchfork (solved in the full
+    model) often merges back into its parent at a second pitchfork: its
+    out-of-subspace part ``w = (I - P) U`` (``U`` the state at the phase
+    origin, ``P = embed ∘ project``) goes to zero there and changes sign as
+    pseudo-arclength carries on onto the mirror half. Test function
+    ``<ŵ_prev, w>`` (``ŵ_prev`` = ``w/|w|`` at the last accepted point),
+    localised by the driver to ``w = 0``; a zero with ``|w| > accept_tol |U|``
+    there (``w`` turned rather than vanished) is rejected.
+
+    The special point (kind ``SUBSPACE_REENTRY``) carries ``terminal``
+    (``True``: the driver ends the branch there, stop reason
+    ``"branch_end"``), ``subspace``, ``u_subspace`` (the reduced state, to
+    match the parent's pitchfork), ``period``, ``deviation`` (``|w|/|U|``)
+    and ``joins = "cycle_branch_point"``: the explorer joins it to the
+    parent's second pitchfork (same ``p``, same reduced orbit).
+
+    Parameters
+    ----------
+    subspace:
+        Name of the invariant subspace of ``problem.model``.
+    terminal:
+        End the run at the special point (default) or only report it.
+    accept_tol:
+        Largest relative out-of-subspace part at the localised point.
+    """
+
+    name = "subspace_reentry"
+    kind = "subspace_reentry"
+
+    def __init__(self, subspace: str, terminal: bool = True, accept_tol: float = 1e-6) -> None:
+        self.subspace = str(subspace)
+        self.terminal = bool(terminal)
+        self.accept_tol = float(accept_tol)
+        self._ref: Array | None = None
+        self._problem_id: int | None = None
+
+    def _w(self, ctx: EventContext) -> tuple[Array, Array, Any]:
+        model = ctx.problem.model  # type: ignore[attr-defined]
+        sub = model.symmetries.invariant_subspaces.get(self.subspace)
+        if sub is None:
+            raise SpecError(f"SubspaceReentryEvent: model {model.name!r} has no invariant "
+                            f"subspace {self.subspace!r}")
+        U = np.asarray(ctx.problem.state(ctx.x), dtype=float)
+        return U - np.asarray(sub.embed(sub.project(U)), dtype=float), U, sub
+
+    def values(self, ctx: EventContext) -> Array:
+        w, _, _ = self._w(ctx)
+        if self._ref is None or self._problem_id != id(ctx.problem) or self._ref.size != w.size:
+            return np.array([float(np.linalg.norm(w))])
+        return np.array([float(self._ref @ w)])
+
+    def accepted(self, ctx: EventContext, values: Array) -> Array:
+        w, _, _ = self._w(ctx)
+        nw = float(np.linalg.norm(w))
+        if nw > 0.0:
+            self._ref = w / nw
+            self._problem_id = id(ctx.problem)
+        return np.array([nw])
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        w, U, sub = self._w(ctx)
+        dev = float(np.linalg.norm(w) / max(np.linalg.norm(U), 1e-300))
+        if dev > self.accept_tol:
+            return None
+        data: dict[str, Any] = {
+            "terminal": self.terminal, "subspace": self.subspace, "deviation": dev,
+            "u_subspace": np.asarray(sub.project(U), dtype=float), "joins": CYCLE_BRANCH_POINT,
+            "switchable": False, "test_value": float(self.values(ctx)[0]),
+        }
+        data.update(ctx.problem.extra(ctx.x))
+        return self.kind, data
+
+
+def _comoving_speed(ctx: EventContext) -> tuple[float, float]:
+    """``(|f⊥(U)| / |L U|, ω)``: the part of ``f(U)`` off the symmetry
+    directions ``L_j U`` (zero exactly on a rotating wave, where
+    ``f = ω L U``) relative to ``|L U|``, and ``ω = <L U, f> / |L U|²``."""
+    pb = ctx.problem
+    model = pb.model  # type: ignore[attr-defined]
+    U = np.asarray(pb.state(ctx.x), dtype=float)
+    f = np.asarray(model.rhs(U, pb.params_at(ctx.p)), dtype=float)
+    Ls = [np.asarray(c.tangent(U), dtype=float) for c in model.symmetries.continuous]
+    lu = Ls[0]
+    nl = float(np.linalg.norm(lu))
+    Q, _ = np.linalg.qr(np.column_stack(Ls))
+    fp = f - Q @ (Q.T @ f)
+    return float(np.linalg.norm(fp)) / nl, float(lu @ f) / nl**2
+
+
+class RotatingWaveCollapseEvent(Event):
+    """End of a relative periodic orbit collapsing onto a rotating wave.
+
+    In the frame co-moving with the symmetry an RPO is a periodic orbit; as
+    it shrinks onto a rotating wave (a Hopf point of the wave in that frame)
+    its time dependence there vanishes: ``f(U) = ω L U`` on the wave. The
+    measure is ``A = |f⊥(U)| / |L U|``, ``f⊥`` the part of ``f`` off the
+    symmetry directions. The RPO system is singular on the wave (its two
+    phase conditions coincide), so the branch cannot be continued through:
+    the event fires when ``A`` falls below ``end_fraction`` of its largest
+    value on the branch (localised there) and reports the end
+    ``p_end`` by extrapolating ``A² `` linearly in ``p`` from the two
+    accepted points of the step (``A² ∝ p - p_end`` near a Hopf point;
+    exact for a normal form), with ``omega`` (the wave's angular speed),
+    ``amplitude`` (``A``), ``terminal``, ``joins = "hopf"`` (the explorer
+    joins it to the rotating wave's Hopf point).
+    """
+
+    name = "rotating_wave_collapse"
+    kind = "rotating_wave_collapse"
+
+    def __init__(self, end_fraction: float = 0.05, terminal: bool = True) -> None:
+        if not 0.0 < end_fraction < 1.0:
+            raise ValueError(f"RotatingWaveCollapseEvent: end_fraction must be in (0, 1), "
+                             f"got {end_fraction!r}")
+        self.end_fraction = float(end_fraction)
+        self.terminal = bool(terminal)
+        self._amax = 0.0
+        self._problem_id: int | None = None
+
+    def _scale(self, ctx: EventContext, a: float) -> float:
+        if self._problem_id != id(ctx.problem):
+            return a
+        return max(self._amax, a)
+
+    def values(self, ctx: EventContext) -> Array:
+        a, _ = _comoving_speed(ctx)
+        amax = self._scale(ctx, a)
+        return np.array([a / amax - self.end_fraction if amax > 0 else -self.end_fraction])
+
+    def crossed(self, v0: Array, v1: Array) -> list[int]:
+        return [0] if (v0[0] > 0.0 and v1[0] <= 0.0) else []
+
+    def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
+        amax = self._scale(ctx1, max(_comoving_speed(ctx0)[0], _comoving_speed(ctx1)[0]))
+        return lambda ctx: _comoving_speed(ctx)[0] / amax - self.end_fraction
+
+    def accepted(self, ctx: EventContext, values: Array) -> Array:
+        a, _ = _comoving_speed(ctx)
+        if self._problem_id != id(ctx.problem):
+            self._problem_id, self._amax = id(ctx.problem), 0.0
+        self._amax = max(self._amax, a)
+        return np.array([a / self._amax - self.end_fraction if self._amax > 0 else 0.0])
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        a, om = _comoving_speed(ctx)
+        a0, a1 = _comoving_speed(ctx0)[0], _comoving_speed(ctx1)[0]
+        d = a1**2 - a0**2
+        p_end = ctx1.p - a1**2 * (ctx1.p - ctx0.p) / d if d != 0.0 else float("nan")
+        data: dict[str, Any] = {
+            "terminal": self.terminal, "amplitude": a, "omega": om, "p_end": float(p_end),
+            "joins": HOPF, "switchable": False, "test_value": a,
+        }
+        data.update(ctx.problem.extra(ctx.x))
+        return self.kind, data
+
+
 def cycle_events(subspace: bool = False) -> list[Event]:
-    """The default events of periodic-orbit branches (``subspace``: the orbit
-    is solved in an invariant subspace, so add :class:`SubspaceBreakingEvent`)."""
+    """The default events of periodic-orbit branches: fold, branch point,
+    period doubling, torus, the :class:`StabilityChangeEvent` safety net, and
+    (``subspace``: the orbit is solved in an invariant subspace)
+    :class:`SubspaceBreakingEvent`."""
     evs: list[Event] = [CycleFoldEvent(), CycleBranchPointEvent(), PeriodDoublingEvent(),
                         TorusEvent()]
     if subspace:
         evs.append(SubspaceBreakingEvent())
+    evs.append(StabilityChangeEvent())
     return evs
