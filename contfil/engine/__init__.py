@@ -5,7 +5,8 @@ orbits)::
 
     from contfil.engine import (
         EquilibriumProblem, RotatingWaveProblem, PeriodicOrbitProblem,
-        RelativePeriodicOrbitProblem,
+        RelativePeriodicOrbitProblem, MultipleShootingProblem,
+        RelativeMultipleShootingProblem, CollocationProblem,
         Continuation, ContinuationSettings, ContinuationState, continue_branch,
         Event, EventContext, FoldEvent, BranchPointEvent, HopfEvent, cycle_events,
         switch_at_branch_point, branch_point_tangents, hopf_data,
@@ -42,7 +43,12 @@ from contfil.engine.linalg.floquet import arnoldi_eigs, flag_trivial, floquet_mu
 from contfil.engine.linalg.hookstep import hookstep_corrector, newton_hookstep
 from contfil.engine.linalg.newton import NewtonInfo, newton_dense, newton_krylov
 from contfil.engine.problems.base import Problem, Stability
+from contfil.engine.problems.collocation import CollocationProblem
 from contfil.engine.problems.equilibrium import EquilibriumProblem
+from contfil.engine.problems.multiple_shooting import (
+    MultipleShootingProblem,
+    RelativeMultipleShootingProblem,
+)
 from contfil.engine.problems.rotating_wave import RotatingWaveProblem, rotating_wave_by_shooting
 from contfil.engine.problems.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
 from contfil.engine.switching.cycles import (
@@ -63,6 +69,9 @@ from contfil.engine.switching.equilibria import (
 from contfil.engine.switching.normal_form import hopf_normal_form
 
 __all__ = [
+    "CollocationProblem",
+    "MultipleShootingProblem",
+    "RelativeMultipleShootingProblem",
     "Branch",
     "BranchPointEvent",
     "BranchStart",
