@@ -1,8 +1,9 @@
 """Crash harness and signal tests at random moments (issue 14).
 
-A small catalog study with an equilibrium branch and a cycle branch
-(``hopf_2d``: equilibria through a Hopf point, then its periodic orbits by
-shooting; ~3 s) is killed with SIGKILL at random moments, in the start-up
+Two small catalog studies (``STUDIES``: an equilibrium branch with its
+periodic orbits by collocation, and an O(2) double Hopf with a whirling-like
+rotating wave and a beating-like standing wave by shooting; seconds each) are
+killed with SIGKILL at random moments, in the start-up
 window (imports, creation of the run directory, replay of what is stored)
 and mid-run (when the stored bytes pass a random threshold), and resumed
 each time. After every kill each stored task log must be a prefix of the
@@ -58,14 +59,24 @@ def _seed() -> int:
     return int(os.environ.get("CONTFIL_HARNESS_SEED", random.SystemRandom().randrange(10**6)))
 
 
-@pytest.fixture(scope="module")
-def reference(tmp_path_factory) -> tuple[Path, Path]:
-    d = tmp_path_factory.mktemp("harness")
+#: The studies killed: ``hopf_2d`` (an equilibrium branch and its periodic
+#: orbits by collocation) and ``o2_hopf`` (the O(2) double Hopf of the
+#: filament's upright state in miniature: a whirling-like rotating wave and a
+#: beating-like standing wave, a relative periodic orbit by shooting).
+STUDIES = {
+    "hopf_2d": ["equilibrium", "periodic_orbit"],
+    "o2_hopf": ["equilibrium", "rotating_wave", "relative_periodic_orbit"],
+}
+
+
+@pytest.fixture(scope="module", params=sorted(STUDIES))
+def reference(request, tmp_path_factory) -> tuple[Path, Path]:
+    d = tmp_path_factory.mktemp(f"harness_{request.param}")
     spec = d / "spec.toml"
-    spec.write_text(SPEC)
+    spec.write_text(SPEC.replace('name = "hopf_2d"', f'name = "{request.param}"'))
     assert main(["run", str(spec), "--out", str(d / "ref"), "--quiet"]) == 0
     g = BranchGraph.load_json(d / "ref" / "graph.json")
-    assert [b.kind for b in g.branches.values()] == ["equilibrium", "periodic_orbit"]
+    assert [b.kind for b in g.branches.values()] == STUDIES[request.param]
     return spec, d / "ref"
 
 
@@ -194,7 +205,7 @@ def test_signal_at_random_moment_then_resume(reference, tmp_path: Path, sig: int
 
 
 def test_cycle_branches_resume_exactly(reference, tmp_path: Path) -> None:
-    """A kill inside the cycle branch: the resumed periodic orbits equal the
+    """A kill inside the first cycle branch: the resumed orbits equal the
     uninterrupted ones to 1e-12 (D4)."""
     spec, ref = reference
     n_eq = len(_records(ref / "tasks" / "T0000+.jsonl").points)
