@@ -65,7 +65,7 @@ class DaskExecutor:
         # pure=False: a task computed again (a resume) is a new task.
         return self.client.submit(_call_pickled, blob, key=key, pure=False)
 
-    def result(self, handle: Any, timeout: float) -> tuple[bool, Any]:
+    def result(self, handle: Any, timeout: float | None) -> tuple[bool, Any]:
         try:
             return True, handle.result(timeout=timeout)
         except TimeoutError:
@@ -136,9 +136,12 @@ def as_executor(client: Any) -> Executor:
     -> :class:`DaskExecutor`, an executor as it is."""
     if client is None:
         return SerialExecutor()
-    if hasattr(client, "busy") and hasattr(client, "submit"):
+    if type(client).__module__.startswith("distributed"):
+        return DaskExecutor(client)
+    if all(hasattr(client, a) for a in ("submit", "result", "wait_any", "cancel", "busy")):
         return client
-    return DaskExecutor(client)
+    raise ContfilError(f"expected a distributed.Client, an executor or None, "
+                       f"got {type(client).__name__}")
 
 
 def sweep(fn: Callable[[float], Any], values: Sequence[float], client: Any,

@@ -60,9 +60,10 @@ class Executor(Protocol):
         """Start ``fn(*args)``; ``key`` names the task (unique, readable)."""
         ...
 
-    def result(self, handle: Any, timeout: float) -> tuple[bool, Any]:
+    def result(self, handle: Any, timeout: float | None) -> tuple[bool, Any]:
         """``(True, value)`` once ``handle`` is done, ``(False, None)`` if it
-        is not done after ``timeout`` seconds; re-raises the task's error."""
+        is not done after ``timeout`` seconds (``None``: wait); re-raises the
+        task's error."""
         ...
 
     def wait_any(self, handles: Sequence[Any], timeout: float) -> None:
@@ -100,7 +101,7 @@ class SerialExecutor:
     def submit(self, fn: Callable[..., Any], *args: Any, key: str) -> _Deferred:
         return _Deferred(fn, args, key)
 
-    def result(self, handle: _Deferred, timeout: float = 0.0) -> tuple[bool, Any]:
+    def result(self, handle: _Deferred, timeout: float | None = None) -> tuple[bool, Any]:
         if not handle.ran:
             self._running = handle.key
             try:
@@ -381,7 +382,8 @@ def map_stored(
                     continue
                 finished = [first]
             for i in sorted(finished):
-                _, value = executor.result(pending.pop(i), 0.0)
+                # Done: fetching the value may still take a round trip.
+                _, value = executor.result(pending.pop(i), None)
                 stored = _jsonable(value)
                 atomic_write_json(d / _record_name(i), {"item": _jsonable(items[i]),
                                                          "result": stored})
