@@ -250,3 +250,75 @@ def test_sweep_on_the_cluster_is_stored_and_resumable(client, tmp_path: Path) ->
     assert len(list((tmp_path / "sweep").glob("R*.json"))) == 8
     (tmp_path / "sweep" / "R00004.json").unlink()
     assert sweep(_square, values, client, tmp_path / "sweep") == out
+
+
+# ------------------------------------------------- progress, show, spec, CLI
+
+
+def test_progress_draws_one_line_per_worker_on_a_terminal_only() -> None:
+    import io
+
+    from rich.console import Console
+
+    from contfil.explore.scheduler import WorkersBusy
+
+    ev = WorkersBusy({"tcp://b:2": [], "tcp://a:1": ["T0003", "T0004"]})
+    assert ev.lines() == ["worker tcp://a:1: T0003 T0004", "worker tcp://b:2: idle"]
+    buf = io.StringIO()
+    shown = ProgressDisplay(console=Console(file=buf, force_terminal=True, width=100))
+    shown.notify(ev)
+    shown.close()
+    assert "worker tcp://a:1: T0003 T0004" in buf.getvalue()
+    assert "worker tcp://b:2: idle" in buf.getvalue()
+    quiet = io.StringIO()  # not a terminal: nothing drawn
+    off = ProgressDisplay(stream=quiet)
+    off.notify(ev)
+    off.close()
+    assert quiet.getvalue() == ""
+
+
+def test_show_lists_the_tasks_of_each_worker_while_running(tmp_path: Path, capsys) -> None:
+    from contfil.app.cli import main
+    from contfil.explore.distributed import WorkersFile
+    from contfil.explore.scheduler import WorkersBusy
+    from contfil.store.run_store import RunStore
+
+    store = RunStore(tmp_path / "run", spec={})  # holds the lock: "running"
+    try:
+        wf = WorkersFile(tmp_path / "run")
+        wf.notify(WorkersBusy({"tcp://w:1": ["T0001"]}))
+        assert main(["show", str(tmp_path / "run")]) == 0
+        out = capsys.readouterr().out
+        assert "status: running" in out and "worker tcp://w:1: T0001" in out
+        wf.close()
+        assert not (tmp_path / "run" / "workers.json").exists()
+    finally:
+        store.close()
+
+
+def test_cluster_key_and_flag_are_checked(tmp_path: Path, capsys) -> None:
+    from contfil.app.cli import main
+    from contfil.errors import SpecError
+
+    with pytest.raises(SpecError, match=r"explorer.cluster: expected 'serial', 'local'"):
+        loads_spec(SPEC.replace("depth = 1", 'depth = 1\ncluster = "everywhere"'))
+    with pytest.raises(SpecError, match=r"explorer.workers: expected an integer >= 1"):
+        loads_spec(SPEC.replace("depth = 1", "depth = 1\nworkers = 0"))
+    spec = tmp_path / "spec.toml"
+    spec.write_text(SPEC)
+    assert main(["run", str(spec), "--out", str(tmp_path / "r"), "--cluster", "x"]) == 2
+    assert "--cluster: expected 'serial', 'local'" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()  # checked before the run directory exists
+
+
+def test_resume_may_change_where_tasks_run(serial: Path, tmp_path: Path) -> None:
+    """explorer.cluster/workers are not part of the results: a run started
+    with one value resumes with another (here: serially) to the same run."""
+    spec = SPEC.replace("depth = 1", 'depth = 1\ncluster = "serial"\nworkers = 2')
+    run = tmp_path / "r"
+    res = run_study(loads_spec(spec), out=run, progress=ProgressDisplay(enabled=False))
+    assert res.n_tasks == 11
+    res = run_study(loads_spec(SPEC), out=run, resume=True,
+                    progress=ProgressDisplay(enabled=False))
+    assert res.n_computed_points == 0  # all read back: the spec was accepted as the same
+    assert_same_run(run, serial)
