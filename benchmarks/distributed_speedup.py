@@ -137,7 +137,7 @@ def sweep_part(executor, tmp: Path, n_steps: int) -> dict:
     row = {"n": len(rhos), "steps": n_steps, "serial_s": round(t_serial, 2),
            "dask_s": round(t_dask, 2), "speedup": round(t_serial / t_dask, 2),
            "identical": same,
-           "lambda_rho28": round(float(np.interp(28.0, rhos, [r["lambda"] for r in serial])), 3)}
+           "lambdas": {f"{r['rho']:.2f}": round(r["lambda"], 3) for r in serial}}
     print(f"sweep   16 Lorenz exponents x {n_steps} RK4 steps  serial {t_serial:7.2f} s  "
           f"2 workers {t_dask:7.2f} s  speed-up {row['speedup']:.2f}  identical {same}",
           flush=True)

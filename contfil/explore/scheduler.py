@@ -47,17 +47,12 @@ from contfil.store.run_store import TaskRecords
 # ------------------------------------------------------------------ executors
 
 
-class Handle(Protocol):
-    """What :meth:`Executor.submit` returns (a Dask future is one)."""
-
-    def done(self) -> bool: ...
-
-
 class Executor(Protocol):
     """Runs picklable functions somewhere and hands back their results."""
 
     def submit(self, fn: Callable[..., Any], *args: Any, key: str) -> Any:
-        """Start ``fn(*args)``; ``key`` names the task (unique, readable)."""
+        """Start ``fn(*args)``; ``key`` names the task (unique, readable).
+        The handle returned has ``done() -> bool`` (a Dask future is one)."""
         ...
 
     def result(self, handle: Any, timeout: float | None) -> tuple[bool, Any]:
