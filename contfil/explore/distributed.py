@@ -17,6 +17,7 @@ Dask scheduler; a crash of the client loses the tasks in flight, and
 
 from __future__ import annotations
 
+import logging
 import os
 import pickle
 from collections.abc import Callable, Iterable, Iterator, Sequence
@@ -108,8 +109,10 @@ def dask_executor(cluster: str, n_workers: int | None = None) -> Iterator[DaskEx
         n = n_workers or os.cpu_count() or 1
         # One thread per worker: the numerical kernels are not re-entrant
         # over threads the way processes are, and BLAS already uses cores.
+        # silence_logs: a worker's task cancelled by an interrupt is logged
+        # as a warning; `contfil` reports the interrupt in one line itself.
         lc = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                      dashboard_address=None)
+                                      dashboard_address=None, silence_logs=logging.ERROR)
         client = distributed.Client(lc)
         try:
             yield DaskExecutor(client)
