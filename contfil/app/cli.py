@@ -3,6 +3,7 @@
 ::
 
     contfil run SPEC [--out DIR] [--resume] [--no-plots] [--quiet]
+                     [--cluster serial|local|ADDRESS] [--workers N]
     contfil simulate SPEC [--out DIR]
     contfil export RUN --format json|graphml [-o FILE] [--states]
     contfil plot RUN [--out DIR] [--observable NAME]
@@ -80,6 +81,12 @@ def _parser() -> argparse.ArgumentParser:
                    help="carry on an interrupted run in --out (or the newest runs/<name>*)")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     r.add_argument("--quiet", action="store_true", help="no progress line, no summary")
+    r.add_argument("--cluster", metavar="serial|local|ADDRESS",
+                   help="where branch tasks run: serial (default), local (a Dask "
+                        "LocalCluster on this machine) or a Dask scheduler address "
+                        "tcp://host:8786 (overrides explorer.cluster; needs contfil[dask])")
+    r.add_argument("--workers", type=_positive_int, metavar="N",
+                   help="worker processes of --cluster local (default: one per core)")
 
     s = sub.add_parser("simulate", help="integrate the spec's model in time")
     s.add_argument("spec", help="spec file (TOML) with [scene] or [model]")
@@ -103,6 +110,16 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _positive_int(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
+    return n
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from contfil.app.spec import load_spec
     from contfil.app.study import run_study
@@ -111,8 +128,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     spec = load_spec(args.spec)
     t0 = time.monotonic()
     progress = ProgressDisplay(enabled=False) if args.quiet else ProgressDisplay()
+    cluster = args.cluster
+    if cluster is not None:
+        from contfil.app.spec import SCHEMA
+
+        cluster = SCHEMA["explorer"]["cluster"][0]("--cluster", cluster)
     res = run_study(spec, out=args.out, resume=args.resume, progress=progress,
-                    plots=False if args.no_plots else None)
+                    plots=False if args.no_plots else None, cluster=cluster,
+                    workers=args.workers)
     if not args.quiet:
         print(res.graph.summary())
         print(f"{len(res.graph)} branches, {len(res.graph.special_points)} special points, "
@@ -217,6 +240,12 @@ def _cmd_show(args: argparse.Namespace) -> int:
         # A run in progress (or interrupted): what the task logs hold so far.
         print("tasks:")
         for line in task_summaries(run):
+            print("  " + line)
+    if state == "running":
+        from contfil.explore.distributed import read_workers
+
+        # A run on a cluster: the tasks each worker is computing now.
+        for line in read_workers(run):
             print("  " + line)
     return 0
 

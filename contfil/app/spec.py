@@ -106,6 +106,14 @@ def _string_list(key: str, v: Any) -> list[str]:
     return [_string(f"{key}[{i}]", x) for i, x in enumerate(v)]
 
 
+def _cluster(key: str, v: Any) -> str:
+    v = _string(key, v)
+    if v not in ("serial", "local") and "://" not in v:
+        raise SpecError(f"{key}: expected 'serial', 'local' or a Dask scheduler address "
+                        f"like 'tcp://host:8786', got {v!r}")
+    return v
+
+
 def _table(key: str, v: Any) -> dict[str, Any]:
     if not isinstance(v, Mapping):
         raise SpecError(f"{key}: expected a table, got {type(v).__name__} {v!r}")
@@ -169,6 +177,11 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "dedup_after": (_integer(2), 6, False, "points before the early duplicate test"),
         "branches": (_string_list, None, False,
                      f"kinds of branch to compute, from {list(BRANCH_KINDS)} (default: all)"),
+        "cluster": (_cluster, None, False,
+                    "where branch tasks run: 'serial' (default), 'local' (a Dask "
+                    "LocalCluster) or a Dask scheduler address tcp://host:port"),
+        "workers": (_integer(1), None, False,
+                    "worker processes of a 'local' cluster (default: one per core)"),
     },
     "output": {
         "dir": (_string, None, False, "run directory (default: runs/<spec name>)"),

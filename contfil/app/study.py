@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -178,6 +179,9 @@ def run_study(
     plots: bool | None = None,
     continuer: Any = None,
     switchers: Any = None,
+    cluster: str | None = None,
+    workers: int | None = None,
+    executor: Any = None,
 ) -> StudyResult:
     """Run (or resume) the study a spec describes; returns the graph and files.
 
@@ -197,6 +201,15 @@ def run_study(
         Override ``output.plots``.
     continuer, switchers:
         Replace the engine (tests, experiments).
+    cluster, workers:
+        Where the branch tasks run (override ``explorer.cluster`` and
+        ``explorer.workers``): ``"serial"``, ``"local"`` (a Dask
+        LocalCluster of ``workers`` processes) or a Dask scheduler address.
+        The graph and the stored points do not depend on it.
+    executor:
+        A ready executor (:mod:`contfil.explore.scheduler`), e.g. a
+        :class:`~contfil.explore.distributed.DaskExecutor` on a client the
+        caller manages; overrides ``cluster``.
     """
     if not isinstance(spec, Spec):
         spec = load_spec(spec)
@@ -213,25 +226,49 @@ def run_study(
         else tuple(spec.explorer["branches"]))
     run_dir = Path(out) if out is not None else default_run_dir(spec, resume)
     display = progress if progress is not None else ProgressDisplay()
-    store = RunStore(run_dir, spec=spec.raw, spec_text=spec.text, resume=resume,
+    where = cluster or spec.explorer["cluster"] or "serial"
+    n_workers = workers or spec.explorer["workers"]
+    store = RunStore(run_dir, spec=_results_spec(spec.raw), spec_text=spec.text, resume=resume,
                      fsync=spec.output["fsync"])
     try:
-        return _run(spec, info, seed, settings, exp_settings, switchers, continuer, store,
-                    display, run_dir, resume, plots)
+        with ExitStack() as stack:
+            if executor is None and where != "serial":
+                from contfil.explore.distributed import dask_executor
+
+                display.message(f"starting the Dask cluster ({where}) ...")
+                executor = stack.enter_context(dask_executor(where, n_workers))
+            return _run(spec, info, seed, settings, exp_settings, switchers, continuer, store,
+                        display, run_dir, resume, plots, executor)
     finally:
         store.close()
+
+
+def _results_spec(raw: dict[str, Any]) -> dict[str, Any]:
+    """The spec as the run directory's manifest keeps it: without the keys
+    that say where tasks run (the results do not depend on them, so a run
+    may be resumed on another cluster, or serially)."""
+    out = dict(raw)
+    if isinstance(out.get("explorer"), dict):
+        out["explorer"] = {k: v for k, v in out["explorer"].items()
+                           if k not in ("cluster", "workers")}
+    return out
 
 
 def _run(spec: Spec, info: ModelInfo, seed: Seed, settings: ContinuationSettings,
          exp_settings: ExplorerSettings, switchers: Any, continuer: Any, store: RunStore,
          display: ProgressDisplay, run_dir: Path, resume: bool,
-         plots: bool | None) -> StudyResult:
+         plots: bool | None, executor: Any = None) -> StudyResult:
     meta = {
         "name": spec.name,
         "model": str(getattr(info.model, "name", "model")),
         "param": str(seed.problem.param),
         "range": list(spec.continuation["range"]),
     }
+    observers: list[Any] = [display]
+    if executor is not None:
+        from contfil.explore.distributed import WorkersFile
+
+        observers.append(WorkersFile(run_dir))
     explorer = Explorer(
         root=seed,
         continuer=continuer or engine_continuer,
@@ -239,9 +276,10 @@ def _run(spec: Spec, info: ModelInfo, seed: Seed, settings: ContinuationSettings
         switchers=switchers,
         continuation_settings=settings,
         store=store,
-        observers=[display],
+        observers=observers,
         symmetries=getattr(info.model, "symmetries", None),
         meta=meta,
+        executor=executor,
     )
     display.message(
         f"{'resuming' if resume else 'run'} {spec.name}: writing to {run_dir} "

@@ -21,6 +21,12 @@ continued from its last stored point (the continuer restores the iterator
 state from it: last points, tangent, step size), and the rest is computed
 as normal.
 
+Where the branch tasks are computed is pluggable too (``executor``, see
+:mod:`contfil.explore.scheduler`): by default one after another in this
+process; with an executor (a Dask cluster) independent branches run at the
+same time, and their results are settled in the same order, so the graph
+and the store are the same as the serial run's.
+
 The continuation itself is pluggable (:class:`Continuer`): the engine adapter
 in :mod:`contfil.explore.continuer` is the production one; tests may use
 any iterator of :class:`Step`.
@@ -48,6 +54,20 @@ from contfil.explore.observers import (
     StoreObserver,
     SwitchDone,
     Switching,
+)
+from contfil.explore.scheduler import (
+    BranchJob,
+    BranchResult,
+    Executor,
+    GraphSnapshot,
+    Replay,
+    ReplayedFailure,
+    SegmentRun,
+    WorkersBusy,
+    compute_branch,
+    key_task,
+    task_key,
+    wait_result,
 )
 from contfil.explore.seeds import (
     PendingProblem,
@@ -164,6 +184,13 @@ class Explorer:
         Graph metadata (name, model, parameter, range).
     stop:
         The interrupt flag checked between points (default: the process's).
+    executor:
+        Computes the branch tasks (:mod:`contfil.explore.scheduler`; e.g. a
+        Dask cluster). ``None`` (default): one after another in this process.
+        The graph and the stored points are the same either way.
+    poll:
+        Seconds between interrupt checks (and worker display updates) while
+        waiting for a scheduled task.
     """
 
     def __init__(
@@ -179,6 +206,8 @@ class Explorer:
         tol: IdentityTolerance | None = None,
         meta: dict[str, Any] | None = None,
         stop: StopRequest | None = None,
+        executor: Executor | None = None,
+        poll: float = 0.25,
     ) -> None:
         self.root = root
         self.continuer = continuer
@@ -196,6 +225,8 @@ class Explorer:
         self.n_computed_points = 0  # points computed now (not read back)
         self.n_tasks = 0
         self._resolved: dict[str, list[Seed]] = {}
+        self.executor = executor
+        self.poll = poll
 
     # ------------------------------------------------------------------ run
     def run(self) -> BranchGraph:
@@ -206,6 +237,8 @@ class Explorer:
             self.observers.close()
 
     def _run(self) -> BranchGraph:
+        if self.executor is not None:
+            return self._run_scheduled(self.executor)
         s = self.settings
         emit = self.observers.notify
         queue: deque[_Task] = deque([_Task(self.root, 0, None)])
@@ -217,47 +250,138 @@ class Explorer:
             task = queue.popleft()
             branch, dup_of = self._branch_from_seed(k, task)
             k += 1
-            self.stop.check()  # an outcome reached while stopping is not recorded
-            if dup_of is None and not branch.points:
-                # Nothing converged from this seed: keep a trace in the store only.
-                emit(BranchDone(k - 1, "failed", None, self.graph,
-                                str(branch.meta.get("end_reason", ""))))
-                continue
-            if dup_of is not None:
-                bid, is_new = dup_of, False
-            else:
-                bid, is_new = self.graph.add_branch(branch)
-            if task.parent is not None:
-                self.graph.link(task.parent, bid)
-            if not is_new:
-                emit(BranchDone(k - 1, "duplicate", bid, self.graph))
-                continue
-            branch.meta.setdefault("origin", task.seed.label or "root")
-            branch.meta.setdefault("depth", task.depth)
-            self.graph.update_branch(bid, branch)
-            for jsp, sp in enumerate(branch.special_points):
-                sid, sp_new = self.graph.add_special_point(bid, sp)
-                node = self.graph.g.nodes[sid]
-                if sp_new and sp.kind not in self.switchers:
-                    # No way to leave here (a torus, a fold that continuation
-                    # passes anyway): a dead end for the explorer.
-                    node["switchable"] = False
-                if not sp_new or node["switched"] or not node["switchable"]:
-                    continue
-                if s.kinds is not None and sp.kind not in s.kinds:
-                    continue
-                if task.depth >= s.depth:
-                    continue
-                emit(Switching(node["label"], sp.kind, branch.param, float(sp.point.p)))
-                seeds = self._switch(f"{task_name(k - 1)}_{jsp}", sp, branch, task,
-                                     node["label"])
-                self.graph.mark_switched(sid)
-                for sd in seeds:
-                    queue.append(_Task(sd, task.depth + 1, sid))
-            self.stop.check()
-            emit(BranchDone(k - 1, "new", bid, self.graph))
+            queue.extend(self._settle(k - 1, task, branch, dup_of))
         self.n_tasks = k
         return self.graph
+
+    def _settle(self, k: int, task: _Task, branch: Branch,
+                dup_of: str | None) -> list[_Task]:
+        """Put task ``k``'s branch into the graph, switch at its special
+        points; returns the tasks of the branches leaving them."""
+        s = self.settings
+        emit = self.observers.notify
+        new_tasks: list[_Task] = []
+        self.stop.check()  # an outcome reached while stopping is not recorded
+        if dup_of is None and not branch.points:
+            # Nothing converged from this seed: keep a trace in the store only.
+            emit(BranchDone(k, "failed", None, self.graph,
+                            str(branch.meta.get("end_reason", ""))))
+            return new_tasks
+        if dup_of is not None:
+            bid, is_new = dup_of, False
+        else:
+            bid, is_new = self.graph.add_branch(branch)
+        if task.parent is not None:
+            self.graph.link(task.parent, bid)
+        if not is_new:
+            emit(BranchDone(k, "duplicate", bid, self.graph))
+            return new_tasks
+        branch.meta.setdefault("origin", task.seed.label or "root")
+        branch.meta.setdefault("depth", task.depth)
+        self.graph.update_branch(bid, branch)
+        for jsp, sp in enumerate(branch.special_points):
+            sid, sp_new = self.graph.add_special_point(bid, sp)
+            node = self.graph.g.nodes[sid]
+            if sp_new and sp.kind not in self.switchers:
+                # No way to leave here (a torus, a fold that continuation
+                # passes anyway): a dead end for the explorer.
+                node["switchable"] = False
+            if not sp_new or node["switched"] or not node["switchable"]:
+                continue
+            if s.kinds is not None and sp.kind not in s.kinds:
+                continue
+            if task.depth >= s.depth:
+                continue
+            emit(Switching(node["label"], sp.kind, branch.param, float(sp.point.p)))
+            seeds = self._switch(f"{task_name(k)}_{jsp}", sp, branch, task, node["label"])
+            self.graph.mark_switched(sid)
+            for sd in seeds:
+                new_tasks.append(_Task(sd, task.depth + 1, sid))
+        self.stop.check()
+        emit(BranchDone(k, "new", bid, self.graph))
+        return new_tasks
+
+    # ----------------------------------------------------- scheduled tasks
+    def _run_scheduled(self, executor: Executor) -> BranchGraph:
+        """The same exploration with the branch tasks computed by ``executor``.
+
+        Task ``k`` is the ``k``-th seed enqueued, as in the serial loop; a
+        task is submitted as soon as its seed is known (its parent settled)
+        and settled in task order, so that the graph, the switches and the
+        store are built in the serial order whatever order the tasks finish
+        in (see :mod:`contfil.explore.scheduler`).
+        """
+        s = self.settings
+        emit = self.observers.notify
+        tasks: list[_Task] = [_Task(self.root, 0, None)]
+        handles: dict[int, Any] = {}
+        shown: dict[str, list[str]] = {}
+
+        def submit(k: int) -> None:
+            if k < s.max_branches:
+                job = self._job(k, tasks[k])
+                if job is not None:
+                    handles[k] = executor.submit(compute_branch, job,
+                                                 key=task_key(task_name(k)))
+
+        def idle() -> None:
+            self.stop.check()
+            busy = {w: [key_task(key) for key in keys]
+                    for w, keys in executor.busy().items()}
+            if busy != shown:
+                shown.clear()
+                shown.update(busy)
+                emit(WorkersBusy(dict(busy)))
+
+        k = 0
+        try:
+            submit(0)
+            while k < len(tasks):
+                if not self.policy.more_tasks(k):
+                    emit(Note(f"explorer: stopped at max_branches={s.max_branches}"))
+                    break
+                task = tasks[k]
+                result: BranchResult | None = None
+                if k in handles:
+                    result = wait_result(executor, handles.pop(k), self.poll, idle)
+                    # The switchers get the problem as the continuation left it.
+                    task.seed.problem = result.problem
+                branch, dup_of = self._branch_from_seed(k, task, result)
+                for t in self._settle(k, task, branch, dup_of):
+                    tasks.append(t)
+                    submit(len(tasks) - 1)
+                k += 1
+        finally:
+            executor.cancel(handles.values())
+            if shown:
+                emit(WorkersBusy({}))
+        self.n_tasks = k
+        return self.graph
+
+    def _job(self, k: int, task: _Task) -> BranchJob | None:
+        """The work of task ``k`` for a worker (``None``: all of it is stored)."""
+        seed = task.seed
+        records: dict[int, TaskRecords | None] = {}
+        needed = False
+        for d in self._directions(task):
+            recs = self.history.read_task(k, d) if self.history else None
+            if recs is not None and recs.header is not None:
+                check_seed(task_name(k, d), recs.header, seed, d)
+            records[d] = recs
+            if recs is None or recs.header is None or not recs.finished:
+                needed = True
+                break
+            if StopReason.parse(str(recs.end)).duplicate_of is not None:
+                break
+        if not needed:
+            return None
+        self._problem(seed)  # the worker needs the problem itself
+        return BranchJob(k=k, seed=seed, directions=self._directions(task), records=records,
+                         continuer=self.continuer, cont_settings=self.cont_settings,
+                         settings=self.settings,
+                         graph=GraphSnapshot.of(self.graph) if task.parent is not None
+                         else None,
+                         switched=task.parent is not None)
 
     # ------------------------------------------------------------ switching
     def _switch(self, key: str, sp: SpecialPoint, branch: Branch, task: _Task,
@@ -320,18 +444,25 @@ class Explorer:
         return seed.problem
 
     # ------------------------------------------------------------ branches
-    def _branch_from_seed(self, k: int, task: _Task) -> tuple[Branch, str | None]:
+    def _directions(self, task: _Task) -> list[int]:
+        """Senses to continue ``task``'s seed in, relative to the seed's own
+        (+1: as the seed says, -1: the other way)."""
         seed = task.seed
         both = self.settings.both_directions if seed.both_directions is None else (
             seed.both_directions)
         if task.parent is None and seed.both_directions is None:
             both = False  # the root goes where the spec says
-        # Senses relative to the seed's own (+1: as the seed says, -1: the other way).
-        dirs = [1, -1] if both else [1]
+        return [1, -1] if both else [1]
+
+    def _branch_from_seed(self, k: int, task: _Task,
+                          result: BranchResult | None = None) -> tuple[Branch, str | None]:
+        seed = task.seed
         segments: list[tuple[list[Point], list[SpecialPoint], StopReason]] = []
         dup: str | None = None
-        for d in dirs:
-            pts, sps, reason = self._segment(k, d, seed, task, check_dup=not segments)
+        for d in self._directions(task):
+            run = None if result is None else result.segments.get(d)
+            pts, sps, reason = self._segment(k, d, seed, task, check_dup=not segments,
+                                             replay=run)
             segments.append((pts, sps, reason))
             if reason.duplicate_of is not None:
                 dup = reason.duplicate_of
@@ -343,7 +474,8 @@ class Explorer:
         return str(getattr(seed.problem, "param", self.graph.meta.get("param", "p")))
 
     def _segment(
-        self, k: int, direction: int, seed: Seed, task: _Task, check_dup: bool
+        self, k: int, direction: int, seed: Seed, task: _Task, check_dup: bool,
+        replay: SegmentRun | None = None,
     ) -> tuple[list[Point], list[SpecialPoint], StopReason]:
         name = task_name(k, direction)
         kind, param = seed.kind, self._param_name(seed)
@@ -374,7 +506,10 @@ class Explorer:
                             lo_hi, self.settings.max_points,
                             float(points[-1].p) if points else float(seed.p0)))
         if reason is None:
-            steps = self.continuer(seed, direction, self.cont_settings, resume)
+            # A scheduled task's steps were computed by a worker (from the
+            # same records); they go through the same checks as computed ones.
+            steps = (Replay(replay) if replay is not None
+                     else self.continuer(seed, direction, self.cont_settings, resume))
             it = iter(steps)
             while reason is None:
                 try:
@@ -382,11 +517,12 @@ class Explorer:
                 except StopIteration:
                     reason = StopReason(str(getattr(steps, "end_reason", "") or "stopped"))
                     break
-                except SEGMENT_FAILURES as exc:
+                except (*SEGMENT_FAILURES, ReplayedFailure) as exc:
                     # A failed step ends the segment, not the branch or the
                     # study; unless an interrupt caused it (then it is no result).
                     self.stop.check()
-                    reason = StopReason.failure(exc)
+                    reason = (exc.reason if isinstance(exc, ReplayedFailure)
+                              else StopReason.failure(exc))
                     emit(Note(f"{name}: {reason.text()}"))
                     break
                 # A point computed while a stop was requested may have been

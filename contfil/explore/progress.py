@@ -10,6 +10,8 @@ accepted point is drawn (no throttle that could hide a branch's last
 point), and a finished segment leaves one line (task, kind, points, end
 reason) above the bars.
 
+A run on a cluster adds one line per worker with the tasks it is running.
+
 The display stays silent when its stream is not a terminal (logs, CI,
 pipes); the run directory and ``contfil show`` say the same things there.
 """
@@ -41,6 +43,7 @@ from contfil.explore.observers import (
     SegmentStarted,
     Switching,
 )
+from contfil.explore.scheduler import WorkersBusy
 
 #: Resolution of a bar (fractions are drawn in steps of 1/BAR_STEPS).
 BAR_STEPS = 1000
@@ -88,6 +91,7 @@ class ProgressDisplay:
         self._segments: dict[tuple[int, int], SegmentStarted] = {}
         self._events: dict[tuple[int, int], int] = {}
         self._status: int | None = None
+        self._workers: list[int] = []
         self._progress: Progress | None = None
 
     # -------------------------------------------------------------- display
@@ -121,6 +125,8 @@ class ProgressDisplay:
             self.status(None)
         elif isinstance(event, Note):
             self.message(event.text)
+        elif isinstance(event, WorkersBusy):
+            self.workers(event.lines())
 
     def _start(self, ev: SegmentStarted) -> None:
         key = (ev.k, ev.direction)
@@ -174,6 +180,15 @@ class ProgressDisplay:
             self._status = None
         if text is not None:
             self._status = live.add_task(text, total=None, since=time.monotonic())
+
+    def workers(self, lines: list[str]) -> None:
+        """One line per worker of a cluster run (the tasks it is running)."""
+        if not self.enabled:
+            return
+        live = self._live()
+        for t in self._workers:
+            live.remove_task(t)
+        self._workers = [live.add_task(line, total=None, start=False) for line in lines]
 
     def message(self, text: str) -> None:
         """A line above the bars."""

@@ -1,0 +1,207 @@
+"""The Dask backend: explorer branches, sweeps and bisections on a cluster.
+
+``contfil run SPEC --cluster local`` starts a ``LocalCluster`` on this
+machine (one single-threaded worker process per core); ``--cluster
+tcp://host:8786`` uses the scheduler of a running cluster (e.g. one started
+by ``dask-jobqueue`` on SLURM or PBS, see ``docs/cluster.md``). Dask is an
+optional dependency (``pip install 'contfil[dask]'``); it is imported only
+here, and only when a cluster is asked for.
+
+The client process is the only writer of the run directory: a worker
+returns the points of its task and the client stores them when the task is
+settled. A worker that dies mid-task loses nothing that was stored, and its
+task (a pure function of its inputs) is given to another worker by the
+Dask scheduler; a crash of the client loses the tasks in flight, and
+``--resume`` computes them again from what is stored.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import pickle
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from contfil.errors import ContfilError
+from contfil.explore.scheduler import Executor, SerialExecutor, WorkersBusy, map_stored
+from contfil.store.atomic import atomic_write_json
+
+#: Name of the file in a run directory listing the tasks on each worker.
+WORKERS_FILE = "workers.json"
+
+
+def _import_distributed() -> Any:
+    try:
+        import distributed
+    except ImportError:
+        raise ContfilError(
+            "--cluster needs Dask: pip install 'contfil[dask]' "
+            "(or pip install 'dask[distributed]')") from None
+    return distributed
+
+
+def _call_pickled(blob: bytes) -> Any:
+    fn, args = pickle.loads(blob)
+    return fn(*args)
+
+
+class DaskExecutor:
+    """:class:`~contfil.explore.scheduler.Executor` on a ``distributed.Client``.
+
+    Arguments are pickled when a task is submitted (not later, in the
+    client's network thread), so a task sees its inputs as they were then.
+    """
+
+    def __init__(self, client: Any) -> None:
+        self.client = client
+        self._distributed = _import_distributed()
+
+    def submit(self, fn: Callable[..., Any], *args: Any, key: str) -> Any:
+        import cloudpickle
+
+        blob = cloudpickle.dumps((fn, args), protocol=pickle.HIGHEST_PROTOCOL)
+        # pure=False: a task computed again (a resume) is a new task.
+        return self.client.submit(_call_pickled, blob, key=key, pure=False)
+
+    def result(self, handle: Any, timeout: float | None) -> tuple[bool, Any]:
+        try:
+            return True, handle.result(timeout=timeout)
+        except TimeoutError:
+            return False, None
+        except self._distributed.TimeoutError:  # older distributed: its own class
+            return False, None
+
+    def wait_any(self, handles: Sequence[Any], timeout: float) -> None:
+        if not handles:
+            return
+        try:
+            self._distributed.wait(list(handles), timeout=timeout, return_when="FIRST_COMPLETED")
+        except (TimeoutError, self._distributed.TimeoutError):
+            pass
+
+    def cancel(self, handles: Iterable[Any]) -> None:
+        hs = list(handles)
+        if hs:
+            self.client.cancel(hs)
+
+    def busy(self) -> dict[str, list[str]]:
+        try:
+            processing = self.client.processing()
+        except (OSError, self._distributed.comm.CommClosedError):
+            return {}
+        return {str(w): sorted(str(k) for k in keys) for w, keys in processing.items()}
+
+
+@contextmanager
+def dask_executor(cluster: str, n_workers: int | None = None) -> Iterator[DaskExecutor]:
+    """A :class:`DaskExecutor` for ``cluster`` while the block runs.
+
+    ``cluster`` is ``"local"`` (a ``LocalCluster`` of ``n_workers``
+    single-threaded worker processes, default one per core) or the address
+    of a running scheduler (``tcp://host:8786``; ``n_workers`` is then
+    the cluster's business). The local cluster is shut down at the end.
+    """
+    distributed = _import_distributed()
+    if cluster == "local":
+        n = n_workers or os.cpu_count() or 1
+        # One thread per worker: the numerical kernels are not re-entrant
+        # over threads the way processes are, and BLAS already uses cores.
+        # silence_logs: a worker's task cancelled by an interrupt is logged
+        # as a warning; `contfil` reports the interrupt in one line itself.
+        lc = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                      dashboard_address=None, silence_logs=logging.ERROR)
+        client = distributed.Client(lc)
+        try:
+            yield DaskExecutor(client)
+        finally:
+            client.close()
+            lc.close()
+        return
+    if not isinstance(cluster, str) or "://" not in cluster and ":" not in cluster:
+        raise ContfilError(f"--cluster: expected 'local' or a scheduler address "
+                           f"(tcp://host:8786), got {cluster!r}")
+    try:
+        client = distributed.Client(cluster, timeout="30s")
+    except (OSError, TimeoutError) as exc:
+        raise ContfilError(f"--cluster: cannot reach the Dask scheduler at {cluster}: "
+                           f"{' '.join(str(exc).split())[:200]}") from None
+    try:
+        yield DaskExecutor(client)
+    finally:
+        client.close()
+
+
+def as_executor(client: Any) -> Executor:
+    """``client`` as an executor: ``None`` -> serial, a ``distributed.Client``
+    -> :class:`DaskExecutor`, an executor as it is."""
+    if client is None:
+        return SerialExecutor()
+    if type(client).__module__.startswith("distributed"):
+        return DaskExecutor(client)
+    if all(hasattr(client, a) for a in ("submit", "result", "wait_any", "cancel", "busy")):
+        return client
+    raise ContfilError(f"expected a distributed.Client, an executor or None, "
+                       f"got {type(client).__name__}")
+
+
+def sweep(fn: Callable[[float], Any], values: Sequence[float], client: Any,
+          directory: str | Path, *, on_progress: Callable[[int, int], None] | None = None,
+          ) -> list[Any]:
+    """``fn(value)`` for each actuation value, one task per value.
+
+    ``fn`` must be picklable (a module-level function, or a
+    ``functools.partial`` of one) and return something JSON-able (numbers,
+    lists, dicts, numpy arrays). One record per finished value is written
+    to ``directory`` by this process as soon as it is done; called again on
+    the same directory (after a crash of this process or of workers), the
+    stored values are read back and only the others are computed. Results
+    come back in the order of ``values``, in their stored (JSON) form.
+    ``client``: a ``distributed.Client``, an executor, or ``None`` (serial).
+    """
+    vals = [float(v) for v in values]
+    return map_stored(fn, vals, as_executor(client), directory, name="value",
+                      on_progress=on_progress)
+
+
+def bisections(fn: Callable[[Any], Any], runs: Sequence[Any], client: Any,
+               directory: str | Path, *,
+               on_progress: Callable[[int, int], None] | None = None) -> list[Any]:
+    """``fn(run)`` for each entry of ``runs`` (e.g. the keyword arguments of
+    an edge-tracking bisection), one task each, stored and resumable as
+    :func:`sweep`. ``run`` entries must be JSON-able (they are stored with
+    the result, and checked on resume)."""
+    return map_stored(fn, list(runs), as_executor(client), directory, name="bisection",
+                      on_progress=on_progress)
+
+
+class WorkersFile:
+    """Observer writing the tasks of each worker to ``RUN/workers.json``
+    (read by ``contfil show`` while the run goes on)."""
+
+    def __init__(self, root: str | Path) -> None:
+        self.path = Path(root) / WORKERS_FILE
+
+    def notify(self, event: Any) -> None:
+        if isinstance(event, WorkersBusy):
+            atomic_write_json(self.path, {"workers": event.workers})
+
+    def close(self) -> None:
+        try:
+            self.path.unlink()
+        except FileNotFoundError:
+            pass
+
+
+def read_workers(root: str | Path) -> list[str]:
+    """The lines of ``RUN/workers.json`` (empty when there is none)."""
+    import json
+
+    try:
+        with open(Path(root) / WORKERS_FILE, encoding="utf-8") as fh:
+            workers = json.load(fh).get("workers", {})
+    except (OSError, ValueError, AttributeError):
+        return []
+    return WorkersBusy({str(w): [str(t) for t in ts] for w, ts in workers.items()}).lines()
