@@ -57,7 +57,8 @@ class FixedStepFlow:
     Every other attribute is the wrapped model's. The planar invariant
     subspace returns a wrapped reduced model, so a shooting problem solved in
     the subspace and its 3D stability use the same time step ``T/steps``.
-    ``flow_calls`` counts time-stepper calls (the honest cost unit).
+    ``flow_calls`` counts time-stepper calls (the honest cost unit),
+    ``tangent_calls`` the exact tangent sweeps (:meth:`flow_tangent`).
     """
 
     def __init__(
@@ -69,6 +70,7 @@ class FixedStepFlow:
         self.steps = int(steps)
         self.stepper_kw = dict(stepper_kw)
         self.flow_calls = 0
+        self.tangent_calls = 0
         sym = model.symmetries
         subs = {}
         for name, sub in sym.invariant_subspaces.items():
@@ -85,6 +87,15 @@ class FixedStepFlow:
         """``phi_T(u)`` by ``steps`` BDF2 steps of size ``T/steps``."""
         self.flow_calls += 1
         return _stepper.flow(self.base, u, p, T, steps=self.steps, **self.stepper_kw)
+
+    def flow_tangent(self, u: Array, p: Array, T: float, V: Array | None = None,
+                     param_index: int | None = None, samples: int = 0) -> Any:
+        """Exact tangent of :meth:`flow` (same ``steps``): one sweep, counted
+        in ``tangent_calls`` (its cost in flows is measured in
+        ``benchmarks/orbit_cost.py``)."""
+        self.tangent_calls += 1
+        return self.base.flow_tangent(u, p, T, V, param_index=param_index, samples=samples,
+                                      steps=self.steps, **self.stepper_kw)
 
 
 def planar(model: FilamentModel) -> FilamentModel:
