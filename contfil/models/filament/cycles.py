@@ -76,7 +76,7 @@ class FixedStepFlow:
         for name, sub in sym.invariant_subspaces.items():
             subs[name] = InvariantSubspace(
                 name, sub.embed, sub.project,
-                lambda sub=sub: FixedStepFlow(sub.reduced_model(), self.steps, **self.stepper_kw),
+                lambda sub=sub: type(self)(sub.reduced_model(), self.steps, **self.stepper_kw),
             )
         self.symmetries = Symmetries(list(sym.continuous), dict(sym.reflections), subs)
 
@@ -94,7 +94,9 @@ class FixedStepFlow:
         in ``tangent_calls`` (its cost in flows is measured in
         ``benchmarks/orbit_cost.py``)."""
         self.tangent_calls += 1
-        return self.base.flow_tangent(u, p, T, V, param_index=param_index, samples=samples,
+        # period samples only where they fall on steps (else the caller flows)
+        k = samples if samples and self.steps % samples == 0 else 0
+        return self.base.flow_tangent(u, p, T, V, param_index=param_index, samples=k,
                                       steps=self.steps, **self.stepper_kw)
 
 

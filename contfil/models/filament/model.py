@@ -151,8 +151,10 @@ class FilamentModel:
         with ``dphi/dp`` when ``param_index`` is given."""
         from .integrators.bdf2_tangent import flow_tangent
 
-        return flow_tangent(self, u, p, T, V, steps=steps, want_p=param_index is not None,
-                            samples=samples, **stepper_kw)
+        n = default_steps(T) if steps is None else int(steps)
+        k = samples if samples and n % samples == 0 else 0
+        return flow_tangent(self, u, p, T, V, steps=n, want_p=param_index is not None,
+                            samples=k, **stepper_kw)
 
     # -- geometry helpers -------------------------------------------------
     def full_state(self, u: Array) -> Array:
