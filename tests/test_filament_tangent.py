@@ -102,3 +102,23 @@ def test_samples_are_the_flow_at_equal_times_and_hook_is_declared() -> None:
     assert np.max(np.abs(ft.samples[2] - half)) < 1e-10
     with pytest.raises(ValueError, match="multiple of samples"):
         flow_tangent(m, u, p, T, steps=STEPS, samples=3)
+
+
+def test_normal_block_along_the_planar_flow_equals_the_full_3d_tangent() -> None:
+    m3 = _model("3d", "squirmer", 100.0)
+    mp = _model("planar", "squirmer", 100.0)
+    U = embed_planar(0.5 * _state(mp, 5))
+    p = m3.default_params()
+    n1 = N - 1
+    C = np.zeros((U.size, 2 * n1))
+    C[0::3, :n1] = np.eye(n1)
+    C[2::3, n1:] = np.eye(n1)
+    block = flow_tangent(m3, U, p, T, V=C, steps=STEPS)
+    assert block.dT is None and block.dp is None  # in-plane: not part of this block
+    # with an in-plane direction added the whole 3D system is propagated
+    E = np.column_stack([embed_planar(e) for e in np.eye(n1)])
+    whole = flow_tangent(m3, U, p, T, V=np.hstack([C, E]), steps=STEPS)
+    assert np.max(np.abs(block.jvp - whole.jvp[:, : 2 * n1])) < 1e-9 * np.max(np.abs(block.jvp))
+    # the block stays normal to the plane
+    assert np.max(np.abs(block.jvp[1::3])) == 0.0
+    assert np.max(np.abs(block.phi - whole.phi)) < 1e-12

@@ -14,9 +14,12 @@ tolerance of the steps).
 Cost: per step one approximate Jacobian, ``2 n_u`` residuals for the
 increment columns (``n_u = N-1`` planar, ``3(N-1)`` in 3D) and one LU of the
 ``3N`` (planar) or ``6N`` unknowns; independent of the number of directions
-(measured in ``benchmarks/orbit_cost.py``). Optionally the states at ``k``
-equally spaced times are returned (``samples``), so period means need no
-extra flows.
+(measured in ``benchmarks/orbit_cost.py``). Directions normal to the plane
+at a planar state of a 3D model (the out-of-plane Floquet block of a
+beating orbit) are propagated along the planar stepper's flow through the
+out-of-plane block alone: ``2(N-1)`` increment columns, ``3N`` unknowns.
+Optionally the states at ``k`` equally spaced times are returned
+(``samples``), so period means need no extra flows.
 """
 
 from __future__ import annotations
@@ -43,25 +46,40 @@ Array = NDArray[np.float64]
 __all__ = ["flow_tangent"]
 
 
-def _state_to_frame_rotations(U: Array, V: Array, planar: bool) -> Array:
-    """Spatial frame rotations (n_u, k) of state perturbations ``V`` (dim, k)
-    at state ``U`` (3D: ``dth_m = dexp(U_m) dU_m``; planar: ``dth = dphi``)."""
-    if planar:
-        return np.array(V, dtype=float, copy=True)
+def _rotations_from_state(U: Array, V: Array) -> Array:
+    """Spatial frame rotations (3(N-1), k) of 3D state perturbations ``V`` at
+    ``U``: ``dth_m = dexp(U_m) dU_m`` (``q_m = exp(U_m) q_eq``)."""
     out = np.empty_like(V, dtype=float)
     for m in range(U.size // 3):
         out[3 * m : 3 * m + 3] = dexp_matrix(U[3 * m : 3 * m + 3], False) @ V[3 * m : 3 * m + 3]
     return out
 
 
-def _frame_rotations_to_state(U: Array, dth: Array, planar: bool) -> Array:
-    """Inverse of :func:`_state_to_frame_rotations` at the final state ``U``."""
-    if planar:
-        return dth.copy()
+def _state_from_rotations(U: Array, dth: Array) -> Array:
+    """Inverse of :func:`_rotations_from_state` at the state ``U``."""
     out = np.empty_like(dth)
     for m in range(U.size // 3):
         out[3 * m : 3 * m + 3] = dexp_matrix(U[3 * m : 3 * m + 3], True) @ dth[3 * m : 3 * m + 3]
     return out
+
+
+def normal_maps(N: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Unknowns and rows of the block normal to the x-z plane (full indices):
+    ``u_x, u_z`` per moving segment, ``Lam_y``, ``Fc_y``, ``Tc_x, Tc_z``
+    against the ``y`` position rows and the ``x, z`` orientation rows."""
+    z = [3 * m + c for m in range(N - 1) for c in (0, 2)]
+    oL = 3 * (N - 1)
+    z += [oL + 3 * j + 1 for j in range(N - 1)]
+    z += [6 * (N - 1) + 1, 6 * N - 3, 6 * N - 1]
+    r = [3 * n + 1 for n in range(N)]
+    r += [3 * N + 3 * n + c for n in range(N) for c in (0, 2)]
+    return np.array(z, dtype=np.int64), np.array(r, dtype=np.int64)
+
+
+def _is_normal_block(phys: Any, U: Array, V: Array) -> bool:
+    """3D model, planar state, directions normal to the plane."""
+    return (not phys.planar and not np.any(U[0::3]) and not np.any(U[2::3])
+            and not np.any(V[1::3]))
 
 
 def flow_tangent(
@@ -87,7 +105,10 @@ def flow_tangent(
     u, p, T:
         Start state (model layout), parameter vector, time.
     V:
-        Directions (dim, k); ``None``: the identity (the monodromy).
+        Directions (dim, k); ``None``: the identity (the monodromy). For a
+        3D model at a planar state with all directions normal to the plane,
+        only that block is propagated, along the planar flow (``dT`` and
+        ``dp``, which are in-plane, are then not computed: None).
     steps:
         Number of equal steps (``default_steps(T)`` if None), as the flow.
     want_T, want_p:
@@ -111,26 +132,34 @@ def flow_tangent(
         raise ValueError(f"flow_tangent: steps ({n}) must be a multiple of samples ({samples})")
     u = np.asarray(u, dtype=float)
     st = BDF2Stepper(model, T / n, tol=tol, p=p, **stepper_kw)
-    st.reset(u)
     ph = st.phys
-    N, planar = ph.N, ph.planar
-    dim = st.dim
+    N, dim = ph.N, st.dim
     V = np.eye(dim) if V is None else np.asarray(V, dtype=float).reshape(dim, -1)
+    U0 = embed_planar(u) if ph.planar else u
+    V3 = np.column_stack([embed_planar(c) for c in V.T]) if ph.planar else V
+    normal = _is_normal_block(ph, U0, V3)
+    if normal:
+        # the orbit stays in the plane: step it with the planar stepper
+        want_T = want_p = False
+        tz, tr = normal_maps(N)
+        st = BDF2Stepper(ph.scene.replace(dimension="planar"), T / n, tol=tol,
+                         strength=_strength(st.par), **stepper_kw)
+        st.reset(U0[1::3])
+    else:
+        tz, tr = st._zmap, st._rmap
+        st.reset(u)
     kdir = V.shape[1]
     nd = kdir + int(want_T) + int(want_p)
-    zmap, rmap = st._zmap, st._rmap
-    nu, npos = (int(c) for c in _kt.reduced_counts(zmap, rmap, N))
-    U0 = embed_planar(u) if planar else u
+    nu, npos = (int(c) for c in _kt.reduced_counts(tz, tr, N))
     dth = np.zeros((nu, nd))
-    dth[:, :kdir] = _state_to_frame_rotations(U0, V, planar)
+    dth[:, :kdir] = _rotations_from_state(U0, V3)[tz[:nu]]
     dx = np.zeros((npos, nd))
     full = np.zeros((N, 3))
     t0 = tangents(st._q)
     for d in range(kdir):
         full[:] = 0.0
-        full[zmap[:nu] // 3 + 1, zmap[:nu] % 3] = dth[:, d]
-        dX = _kt.dpositions(t0, full, ph.dL).ravel()
-        dx[:, d] = dX[rmap[:npos]]
+        full[tz[:nu] // 3 + 1, tz[:nu] % 3] = dth[:, d]
+        dx[:, d] = _kt.dpositions(t0, full, ph.dL).ravel()[tr[:npos]]
     dxm1 = dx.copy()
     du = np.zeros((nu, nd))
     ddt = np.zeros(nd)
@@ -139,8 +168,10 @@ def flow_tangent(
         ddt[kdir] = 1.0 / n
     if want_p:
         ds[-1] = 1.0
-    strength = _strength(st.par)
-    dpar = ph.params(strength + 1.0) - ph.params(strength)
+    # the tangent uses the model's own (3D or planar) physics, also when a
+    # planar stepper carries the orbit
+    par = ph.params(_strength(st.par))
+    dpar = ph.params(_strength(st.par) + 1.0) - par
     coef = np.empty(5)
     scale = np.ones(6 * N)
     samp: list[Array] = []
@@ -156,13 +187,18 @@ def flow_tangent(
                 f"flow_tangent: step {k} (dt = {st.dt:.3g}) needed sub-steps; the flow is not "
                 "smooth there, so it has no tangent (use more steps)")
         _k._step_setup(k, st.dt, st.par, coef, scale)
-        _kt.tangent_step(st._zp, qk, xk, xkm1, uk, coef, st.par, dpar, ph.flags, zmap, rmap,
+        _kt.tangent_step(st._zp, qk, xk, xkm1, uk, coef, par, dpar, ph.flags, tz, tr,
                          scale, dth, dx, dxm1, du, ddt, ds)
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular step Jacobian)")
-    phi = st.state
     U1 = state_from_frames(st._q)
-    dphi = _frame_rotations_to_state(U1, dth, planar)
+    full3 = np.zeros((U1.size, nd))
+    full3[tz[:nu]] = dth
+    dphi = _state_from_rotations(U1, full3)
+    if ph.planar:
+        dphi, phi = dphi[1::3], st.state
+    else:
+        phi = U1
     return FlowTangent(
         phi=phi,
         jvp=dphi[:, :kdir],

@@ -36,11 +36,15 @@ columns, ``d/dT`` through ``ddt = dT/steps``, ``d/ds``) are solved together.
 The new frames move by ``dth^{k+1} = dexp(u) du + Rot(u) dth^k``, the
 positions by the robot-arm relation.
 
-Reduced layouts (planar): the tangent arrays hold the reduced components
-only (``dth``, ``du``: the entries of ``zmap`` below ``3(N-1)``; ``dx``: the
-position rows of ``rmap``). The per-segment 3x3 blocks are restricted to
-them, which is exact because the subspace is invariant (rotations about e2
-map e2 to itself).
+Selected blocks: ``zmap``/``rmap`` (full indices) pick the tangent system,
+the planar one (planar perturbations of a planar orbit), the out-of-plane
+one (the block normal to the plane along a planar orbit) or all of it; the
+tangent arrays hold the selected components only (``dth``, ``du``: the
+entries of ``zmap`` below ``3(N-1)``; ``dx``: the position rows of
+``rmap``). The per-segment 3x3 blocks are restricted to them, which is exact
+because the block is invariant (rotations about e2 map e2 to itself and the
+e2-normal plane to itself). The residual itself is always evaluated on the
+full unknowns, so the block need not be the one the stepper solved.
 """
 
 from __future__ import annotations
@@ -152,10 +156,13 @@ def step_matrices(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(J, Jth, c_dt, c_s)`` of a converged step (module docstring).
 
-    ``zf`` is the step's physical full unknown vector, ``J = dR/dz`` in the
-    scaled reduced unknowns (nz, nz), ``Jth = dR/dth^k`` (nz, nu),
-    ``c_dt = dR/ddt`` and ``c_s = dR/ds`` (nz,; zero unless ``want_p``),
-    ``dpar = d par / ds``.
+    ``zf`` is the step's physical full unknown vector; ``zmap``/``rmap``
+    (full indices, increments first / position rows first) select the
+    tangent system, which may differ from the stepper's own (e.g. the
+    out-of-plane block along a planar orbit). ``J = dR/dz`` in the scaled
+    selected unknowns (nz, nz), ``Jth = dR/dth^k`` (nz, nu), ``c_dt =
+    dR/ddt`` and ``c_s = dR/ds`` (nz,; zero unless ``want_p``), ``dpar = d
+    par / ds``.
     """
     N = qk.shape[0]
     nz = zmap.shape[0]
@@ -163,24 +170,32 @@ def step_matrices(
     g, dt = coef[C_G], coef[C_DT]
     gdt = g * dt
     dL = par[P_DL]
-    z = np.empty(nz)
+    # the residual is evaluated on the full unknowns (identity maps), so the
+    # selected block may be any invariant one whatever the stepper solved
+    idm = np.arange(6 * N)
+    z = np.empty(6 * N)
+    for i in range(6 * N):
+        z[i] = zf[i] / scale[i]
+    J0 = approx_jacobian(z, qk, coef, par, flags, 1, idm, idm, scale)
+    J = np.empty((nz, nz))
     for i in range(nz):
-        z[i] = zf[zmap[i]] / scale[zmap[i]]
-    J = approx_jacobian(z, qk, coef, par, flags, 1, zmap, rmap, scale)
+        for j in range(nz):
+            J[i, j] = J0[rmap[i], zmap[j]]
     q = np.empty((N, 4))
     X = np.empty((N, 3))
     rfull = np.empty(6 * N)
-    rp = np.empty(nz)
-    rm = np.empty(nz)
+    rp = np.empty(6 * N)
+    rm = np.empty(6 * N)
     zp = z.copy()
     for j in range(nu):
-        zp[j] = z[j] + FD_H
-        residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, zmap, rmap, scale, q, X, rfull)
-        zp[j] = z[j] - FD_H
-        residual(zp, rm, qk, xk, xkm1, uk, coef, par, flags, zmap, rmap, scale, q, X, rfull)
-        zp[j] = z[j]
+        c = zmap[j]
+        zp[c] = z[c] + FD_H
+        residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
+        zp[c] = z[c] - FD_H
+        residual(zp, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
+        zp[c] = z[c]
         for i in range(nz):
-            J[i, j] = (rp[i] - rm[i]) / (2.0 * FD_H)
+            J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / (2.0 * FD_H)
     # velocities at the converged step
     frames_at(zf, qk, q)
     t = tangents(q)
@@ -247,10 +262,10 @@ def step_matrices(
         # R is affine in the strength: a unit central difference is exact
         pp = par + dpar
         pm = par - dpar
-        residual(z, rp, qk, xk, xkm1, uk, coef, pp, flags, zmap, rmap, scale, q, X, rfull)
-        residual(z, rm, qk, xk, xkm1, uk, coef, pm, flags, zmap, rmap, scale, q, X, rfull)
+        residual(z, rp, qk, xk, xkm1, uk, coef, pp, flags, idm, idm, scale, q, X, rfull)
+        residual(z, rm, qk, xk, xkm1, uk, coef, pm, flags, idm, idm, scale, q, X, rfull)
         for i in range(nz):
-            c_s[i] = 0.5 * (rp[i] - rm[i])
+            c_s[i] = 0.5 * (rp[rmap[i]] - rm[rmap[i]])
     return J, Jth, c_dt, c_s
 
 
