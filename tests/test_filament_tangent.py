@@ -122,3 +122,16 @@ def test_normal_block_along_the_planar_flow_equals_the_full_3d_tangent() -> None
     # the block stays normal to the plane
     assert np.max(np.abs(block.jvp[1::3])) == 0.0
     assert np.max(np.abs(block.phi - whole.phi)) < 1e-12
+
+
+def test_forward_difference_option_is_close_to_central() -> None:
+    m = _model("planar", "squirmer", 100.0)
+    u = _state(m, 6)
+    p = m.default_params()
+    c = flow_tangent(m, u, p, T, steps=STEPS)
+    f = flow_tangent(m, u, p, T, steps=STEPS, fd="forward")
+    err = np.max(np.abs(f.jvp - c.jvp)) / np.max(np.abs(c.jvp))
+    # forward differences of the increment columns: ~sqrt(eps) accurate
+    assert 1e-12 < err < 1e-6
+    with pytest.raises(ValueError, match="fd must be"):
+        flow_tangent(m, u, p, T, steps=STEPS, fd="complex")

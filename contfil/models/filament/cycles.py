@@ -58,17 +58,21 @@ class FixedStepFlow:
     subspace returns a wrapped reduced model, so a shooting problem solved in
     the subspace and its 3D stability use the same time step ``T/steps``.
     ``flow_calls`` counts time-stepper calls (the honest cost unit),
-    ``tangent_calls`` the exact tangent sweeps (:meth:`flow_tangent`).
+    ``tangent_calls`` the exact tangent sweeps (:meth:`flow_tangent`;
+    ``tangent_fd``: ``"central"`` or the cheaper ``"forward"`` differences of
+    each step's increment columns).
     """
 
     def __init__(
-        self, model: FilamentModel, steps: int = STEPS_PER_PERIOD, **stepper_kw: Any
+        self, model: FilamentModel, steps: int = STEPS_PER_PERIOD, tangent_fd: str = "central",
+        **stepper_kw: Any,
     ) -> None:
         if int(steps) < 1:
             raise ValueError(f"FixedStepFlow: steps must be >= 1, got {steps!r}")
         self.base = model
         self.steps = int(steps)
         self.stepper_kw = dict(stepper_kw)
+        self.tangent_fd = tangent_fd
         self.flow_calls = 0
         self.tangent_calls = 0
         sym = model.symmetries
@@ -76,7 +80,8 @@ class FixedStepFlow:
         for name, sub in sym.invariant_subspaces.items():
             subs[name] = InvariantSubspace(
                 name, sub.embed, sub.project,
-                lambda sub=sub: type(self)(sub.reduced_model(), self.steps, **self.stepper_kw),
+                lambda sub=sub: type(self)(sub.reduced_model(), self.steps, self.tangent_fd,
+                                           **self.stepper_kw),
             )
         self.symmetries = Symmetries(list(sym.continuous), dict(sym.reflections), subs)
 
@@ -97,7 +102,7 @@ class FixedStepFlow:
         # period samples only where they fall on steps (else the caller flows)
         k = samples if samples and self.steps % samples == 0 else 0
         return self.base.flow_tangent(u, p, T, V, param_index=param_index, samples=k,
-                                      steps=self.steps, **self.stepper_kw)
+                                      steps=self.steps, fd=self.tangent_fd, **self.stepper_kw)
 
 
 def planar(model: FilamentModel) -> FilamentModel:
