@@ -11,10 +11,9 @@ its inputs
 with ``dth^k`` the spatial rotation vectors perturbing the frames ``q^k``
 (``q -> exp(dth) q``). The pieces:
 
-- ``dR/dz``: the load columns of
-  :func:`~.bdf2_jacobian.approx_jacobian` (``jmode = 1``) are exact (``R``
-  is affine in the loads at fixed frames: the frozen mobility and
-  ``dexp_inv(u, .)`` are exactly the ones of the residual); the
+- ``dR/dz``: the load columns are exact (:func:`load_columns`: ``R`` is
+  affine in the loads at fixed frames, the mobility at the step's positions
+  and ``dexp_inv(u, .)`` are exactly the ones of the residual); the
   ``u`` columns (frames move: mobility, positions, squirming, elastic
   torques all change) are central differences of the compiled residual,
   step :data:`FD_H` (error ~1e-10 relative, measured in the tests);
@@ -52,7 +51,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .bdf2_jacobian import approx_jacobian
+from .bdf2_jacobian import _load_jacobian
 from .bdf2_residual import (
     C_A1,
     C_A2,
@@ -64,9 +63,10 @@ from .bdf2_residual import (
     unpack_loads,
     velocities,
 )
-from .effects import P_DL
+from .effects import F_HYDRO, HYD_RPY, P_A, P_DL, P_ETA
 from .geometry import positions, tangents
 from .quaternion import dexp_inv, dexp_matrix, qexp, qrotmat
+from .rpy import rpy_mobility, self_mobilities
 
 #: Central-difference step (radians) of the increment columns of dR/dz:
 #: ~eps^(1/3), the optimum of a central difference of an O(1) function.
@@ -121,6 +121,72 @@ def _reduced_block(blocks: np.ndarray, zmap: np.ndarray, nu: int) -> np.ndarray:
             if mi == mj:
                 M[i, j] = blocks[mi, ci, cj]
     return M
+
+
+@njit(cache=True)
+def load_columns(
+    zf: np.ndarray,
+    qk: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    nu: int,
+) -> np.ndarray:
+    """Exact load columns ``dR/dz[:, nu:]`` (scaled) of the selected block.
+
+    ``R`` is affine in the loads at fixed frames: ``dR/dz_load = -g dt D M
+    G_load`` with the mobility ``M`` at the step's positions, ``D =
+    blockdiag(I/dL, dexp_inv(u_n))`` and ``G_load`` the load incidence of
+    :func:`~.bdf2_jacobian._load_jacobian` (only its load columns are
+    multiplied, not the whole ``6N x 6N`` matrix).
+    """
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nl = nz - nu
+    dL = par[P_DL]
+    gdt = coef[C_G] * coef[C_DT]
+    q = np.empty((N, 4))
+    frames_at(zf, qk, q)
+    t = tangents(q)
+    Lam, _, _ = unpack_loads(zf, N)
+    G = _load_jacobian(q, t, Lam, par, scale[3 * (N - 1)], scale[6 * N - 1])
+    Gl = np.empty((6 * N, nl))
+    for i in range(6 * N):
+        for j in range(nl):
+            Gl[i, j] = G[i, zmap[nu + j]]
+    if flags[F_HYDRO] == HYD_RPY:
+        MG = rpy_mobility(positions(t, dL), par[P_A], par[P_ETA]) @ Gl
+    else:
+        mt, mr = self_mobilities(par[P_A], par[P_ETA])
+        MG = Gl.copy()
+        for i in range(3 * N):
+            for j in range(nl):
+                MG[i, j] *= mt
+                MG[3 * N + i, j] *= mr
+    out = np.empty((nz, nl))
+    u = np.zeros(3)
+    for i in range(nz):
+        r = rmap[i]
+        if r < 3 * N:
+            for j in range(nl):
+                out[i, j] = -gdt / dL * MG[r, j]
+        else:
+            n, c = (r - 3 * N) // 3, (r - 3 * N) % 3
+            if n == 0:
+                for j in range(nl):
+                    out[i, j] = -gdt * MG[r, j]
+            else:
+                for k in range(3):
+                    u[k] = zf[3 * (n - 1) + k]
+                A = dexp_matrix(u, True)
+                for j in range(nl):
+                    out[i, j] = -gdt * (A[c, 0] * MG[3 * N + 3 * n, j]
+                                        + A[c, 1] * MG[3 * N + 3 * n + 1, j]
+                                        + A[c, 2] * MG[3 * N + 3 * n + 2, j])
+    return out
 
 
 @njit(cache=True)
@@ -181,11 +247,11 @@ def step_matrices(
     z = np.empty(6 * N)
     for i in range(6 * N):
         z[i] = zf[i] / scale[i]
-    J0 = approx_jacobian(z, qk, coef, par, flags, 1, idm, idm, scale)
     J = np.empty((nz, nz))
+    Jl = load_columns(zf, qk, coef, par, flags, zmap, rmap, scale, nu)
     for i in range(nz):
-        for j in range(nz):
-            J[i, j] = J0[rmap[i], zmap[j]]
+        for j in range(nz - nu):
+            J[i, nu + j] = Jl[i, j]
     q = np.empty((N, 4))
     X = np.empty((N, 3))
     rfull = np.empty(6 * N)
