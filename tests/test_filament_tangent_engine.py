@@ -18,6 +18,7 @@ import pytest
 from contfil.engine.continuation.driver import Continuation, ContinuationSettings
 from contfil.engine.linalg.newton import newton_dense
 from contfil.engine.problems.shooting import PeriodicOrbitProblem
+from contfil.errors import ConvergenceError
 from contfil.models.filament import FilamentModel, Scene
 from contfil.models.filament.cycles import FixedStepFlow, double_hopf, solve_beating
 from contfil.models.filament.integrators.bdf2 import trajectory
@@ -116,3 +117,21 @@ def test_period_means_from_samples_equal_extra_flows(beating):
     # today's extra flows restart BDF2 at every quarter: same to O(dt^2)
     b = _problem(m, x, p, cls=NoTangentFlow, period_means=4).observables(x, p)
     assert a["mean_bending_energy"] == pytest.approx(b["mean_bending_energy"], rel=1e-2)
+
+
+class FailingTangentFlow(FixedStepFlow):
+    """A stepper whose tangent sweep fails (as after a rescued step)."""
+
+    def flow_tangent(self, *args, **kw):
+        raise ConvergenceError("flow_tangent: step 3 needed sub-steps")
+
+
+def test_failed_sweep_falls_back_to_finite_differences(beating):
+    m, x, p = beating
+    pb = _problem(m, x, p, cls=FailingTangentFlow)
+    J = pb.jacobian(x, p)
+    ref = _problem(m, x, p, cls=NoTangentFlow).jacobian(x, p)
+    assert pb.ops.sweep_failures == 1  # tried once at this point, then FD only
+    assert np.max(np.abs(J - ref)) == 0.0
+    st = pb.stability(x, p)
+    assert st.trivial.sum() == 2

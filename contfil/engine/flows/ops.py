@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 
 from contfil.engine.flows.radau import RadauFlow
 from contfil.engine.problems.base import fd_step
-from contfil.errors import NonFiniteError
+from contfil.errors import ConvergenceError, NonFiniteError
 from contfil.protocol import FlowTangent, flow_tangent_hook
 
 __all__ = ["FlowOps", "flow_ops"]
@@ -59,6 +59,9 @@ class FlowOps:
         self.tangent_evals = 0
         #: exact tangent sweeps of a model's ``flow_tangent`` hook
         self.tangent_sweeps = 0
+        #: sweeps that failed (finite differences were used there instead)
+        self.sweep_failures = 0
+        self._failed: tuple[bytes, bytes, float] | None = None
         #: states per period returned with each sweep (period means)
         self.samples = 0
         own = getattr(model, "flow", None)
@@ -127,13 +130,34 @@ class FlowOps:
         if self._sweep is not None:
             self._sweep = (self._key(u, p, T), self._sweep[1])
 
+    def _try_sweep(self, u: Array, p: Array, T: float) -> FlowTangent | None:
+        """:meth:`sweep`, or None where the model's stepper had no smooth
+        tangent (e.g. a step it had to rescue): the caller then falls back to
+        finite differences of the flow at that point."""
+        if self._tangent is None:
+            return None
+        key = self._key(u, p, T)
+        if self._failed == key:
+            return None
+        try:
+            return self.sweep(u, p, T)
+        except ConvergenceError:
+            self.sweep_failures += 1
+            self._failed = key
+            return None
+
     def tangent_block(self, u: Array, p: Array, T: float, V: Array) -> Array:
-        """``Dφ_T(u) V`` for the columns of ``V`` by one exact sweep (no caching)."""
+        """``Dφ_T(u) V`` for the columns of ``V`` by one exact sweep (no
+        caching; finite differences where the sweep fails)."""
         if self._tangent is None:
             raise ValueError("FlowOps.tangent_block: the model has no flow_tangent hook")
         self.tangent_sweeps += 1
-        ft = self._tangent(np.asarray(u, float), np.asarray(p, float), float(T),
-                           np.asarray(V, float), None, 0)
+        try:
+            ft = self._tangent(np.asarray(u, float), np.asarray(p, float), float(T),
+                               np.asarray(V, float), None, 0)
+        except ConvergenceError:
+            self.sweep_failures += 1
+            return np.column_stack([self._fd_jvp(u, p, T, v, 0.0) for v in np.asarray(V).T])
         return np.asarray(ft.jvp, dtype=float)
 
     def flow(self, u: Array, p: Array, T: float) -> Array:
@@ -155,13 +179,17 @@ class FlowOps:
             self.flow(u, p, T)  # make sure the base trajectory is cached (and counted)
             self.tangent_evals += 1
             return self.radau.flow_jvp(u, p, T, v, dT)
-        if self._tangent is not None:
-            ft = self.sweep(u, p, T)
+        ft = self._try_sweep(u, p, T)
+        if ft is not None:
             out = ft.jvp @ np.asarray(v, float)
             return out + dT * ft.dT if dT != 0.0 else out
         if self._flow_jvp is not None and dT == 0.0:
             self.tangent_evals += 1
             return np.asarray(self._flow_jvp(u, p, T, v), dtype=float)
+        return self._fd_jvp(u, p, T, v, dT)
+
+    def _fd_jvp(self, u: Array, p: Array, T: float, v: Array, dT: float) -> Array:
+        """``Dφ_T(u) v + ∂_T φ dT`` by finite differences of the flow."""
         base = self.flow(u, p, T)
         z = np.concatenate([u, [T]])
         dv = np.concatenate([v, [dT]])
@@ -187,8 +215,9 @@ class FlowOps:
         """
         if self.radau is not None:
             return self.jvp(u, p, T, np.zeros_like(u), 1.0)
-        if self._tangent is not None:
-            return np.array(self.sweep(u, p, T).dT, dtype=float)
+        ft = self._try_sweep(u, p, T)
+        if ft is not None:
+            return np.array(ft.dT, dtype=float)
         return np.asarray(self.model.rhs(self.flow(u, p, T), p), dtype=float)
 
     def dflow_dp(self, u: Array, p: Array, T: float) -> Array:
@@ -200,8 +229,9 @@ class FlowOps:
         if self.radau is not None:
             self.flow(u, p, T)
             return self.radau.dflow_dp(u, p, T)
-        if self._tangent is not None:
-            return np.array(self.sweep(u, p, T).dp, dtype=float)
+        ft = self._try_sweep(u, p, T)
+        if ft is not None:
+            return np.array(ft.dp, dtype=float)
         h = 1e-6 * (1.0 + abs(float(p[k])))
         pp, pm = np.array(p, dtype=float), np.array(p, dtype=float)
         pp[k] += h
@@ -216,8 +246,9 @@ class FlowOps:
         if self.radau is not None:
             self.flow(u, p, T)
             return self.radau.monodromy(u, p, T)[0]
-        if self._tangent is not None:
-            return np.array(self.sweep(u, p, T).jvp, dtype=float)
+        ft = self._try_sweep(u, p, T)
+        if ft is not None:
+            return np.array(ft.jvp, dtype=float)
         n = np.asarray(u).size
         return np.column_stack([self.jvp(u, p, T, e) for e in np.eye(n)])
 
