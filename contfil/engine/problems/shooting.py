@@ -442,9 +442,9 @@ class PeriodicOrbitProblem(Problem):
         u, T = self.split(x)
         q = self.params_at(p)
         G = self._drift_map(x)
+        before = self.tangent_sweeps
         M = self.ops.monodromy(u, q, T)
         M = M if G is None else G @ M
-        before = self.tangent_sweeps
         if self.subspace is None:
             blocks = [(M, np.eye(self.dim))]
             coupling = 0.0
@@ -459,7 +459,8 @@ class PeriodicOrbitProblem(Problem):
             blocks = [(M, E), (Moo, C)]
         st = floquet_from_blocks(blocks, self.trivial_directions(x, p), nev=self.nev, period=T)
         st.info["block_coupling"] = coupling
-        st.info["tangent_sweeps"] = self.tangent_sweeps - before + 1
+        # sweeps taken here (0 for the solve model's when the corrector's is reused)
+        st.info["tangent_sweeps"] = self.tangent_sweeps - before
         st.info["exact_tangent"] = True
         return st
 
