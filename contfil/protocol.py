@@ -14,6 +14,13 @@ Conventions
 - ``flow(u, p, T)`` must be a smooth function of ``u`` and ``T`` (a fixed
   number of steps per call, not adaptive), because the engine differentiates
   it by finite differences for shooting and Floquet multipliers.
+- ``flow_tangent(u, p, T, V, param_index, samples)`` (optional) returns the
+  exact derivative of that same discrete flow as a :class:`FlowTangent`:
+  ``Dphi_T(u) V`` for the columns of ``V`` (``None``: the identity, i.e.
+  the monodromy), ``dphi/dT`` and ``dphi/dp[param_index]`` from one sweep.
+  The engine probes it once (:func:`flow_tangent_hook`) and then uses it for
+  shooting Jacobians, tangents and Floquet multipliers instead of finite
+  differences.
 """
 
 from __future__ import annotations
@@ -74,6 +81,34 @@ class InvariantSubspace:
 
 
 @dataclass
+class FlowTangent:
+    """Result of a model's ``flow_tangent`` hook (one sweep along the flow).
+
+    ``phi`` is ``phi_T(u)``; ``jvp`` (dim, k) is ``Dphi_T(u) V``; ``dT`` and
+    ``dp`` are ``dphi/dT`` and ``dphi/dp[param_index]`` (``None`` when not
+    asked for); ``samples`` (k, dim), if asked for, the states at ``t = j
+    T/k``, j = 0..k-1 (period means without extra flows).
+    """
+
+    phi: Array
+    jvp: Array
+    dT: Array | None = None
+    dp: Array | None = None
+    samples: Array | None = None
+
+
+#: The optional hook ``flow_tangent(u, p, T, V, param_index, samples) -> FlowTangent``.
+FlowTangentFn = Callable[..., FlowTangent]
+
+
+def flow_tangent_hook(model: Any) -> FlowTangentFn | None:
+    """The model's ``flow_tangent`` hook, or ``None`` (the default: no exact
+    tangents). Probe it once per model, never in a loop."""
+    fn = getattr(model, "flow_tangent", None)
+    return fn if callable(fn) else None
+
+
+@dataclass
 class Symmetries:
     """Symmetries a model declares; all optional."""
 
@@ -89,7 +124,9 @@ class Model(Protocol):
     Required: ``name``, ``dim``, ``param_names``, ``default_params``,
     ``initial_state``, ``rhs``, ``symmetries``, ``observables``.
     Optional (checked with ``getattr``): ``jacobian(u, p)`` returning a dense
-    array, ``flow(u, p, T)`` a time-stepper, ``flow_jvp(u, p, T, v)``.
+    array, ``flow(u, p, T)`` a time-stepper, ``flow_jvp(u, p, T, v)``,
+    ``flow_tangent(u, p, T, V, param_index, samples)`` the exact tangent of
+    ``flow`` (see :class:`FlowTangent`; probed by :func:`flow_tangent_hook`).
     """
 
     name: str

@@ -35,7 +35,7 @@ from contfil.engine.problems.base import Stability
 
 Array = NDArray[np.float64]
 
-__all__ = ["arnoldi_eigs", "flag_trivial", "floquet_multipliers"]
+__all__ = ["arnoldi_eigs", "flag_trivial", "floquet_from_blocks", "floquet_multipliers"]
 
 #: Krylov space invariant: the new direction is below this fraction of the
 #: largest entry of ``H`` (round-off), so the Ritz values are exact.
@@ -332,3 +332,67 @@ def floquet_multipliers(
     return Stability(
         values=vals, kind="multipliers", trivial=trivial, vectors=X, residual=residual, info=info
     )
+
+
+def floquet_from_blocks(
+    blocks: Sequence[tuple[Array, Array]],
+    trivial_directions: Sequence[Array] = (),
+    nev: int = 13,
+    period: float | None = None,
+) -> Stability:
+    """All Floquet multipliers from dense monodromy blocks (no Arnoldi).
+
+    Parameters
+    ----------
+    blocks:
+        ``(M_b, B_b)`` pairs: the monodromy restricted to an invariant
+        subspace with basis ``B_b`` (columns, ``n x k``), ``M_b`` (``k x k``)
+        in that basis (e.g. the in-plane block of a planar orbit in reduced
+        coordinates and the out-of-plane block in an orthonormal complement).
+        A single ``(M, I)`` is the whole monodromy.
+    trivial_directions:
+        ``f(u)`` and ``L u`` (full coordinates); the multipliers whose
+        eigenvectors lie in their span are flagged (:func:`flag_trivial`).
+    nev:
+        Number of leading non-trivial pairs whose eigen-residual is reported.
+    period:
+        If given, ``info["exponents"] = log(μ)/T``.
+
+    Returns
+    -------
+    Stability
+        Values sorted leading first, eigenvectors in full coordinates (unit),
+        ``residual`` = the largest ``|M_b y - μ y| / |y|`` of the ``nev``
+        leading non-trivial pairs, ``info["method"] = "monodromy"``.
+    """
+    vals_l, vecs_l, res_l = [], [], []
+    for M, B in blocks:
+        M = np.asarray(M, dtype=float)
+        w, Y = np.linalg.eig(M)
+        vals_l.append(w)
+        X = np.asarray(B, dtype=float) @ Y
+        X = X / np.linalg.norm(X, axis=0, keepdims=True)
+        vecs_l.append(X)
+        res_l.append(np.linalg.norm(M @ Y - Y * w[None, :], axis=0) / np.linalg.norm(Y, axis=0))
+    vals = np.concatenate(vals_l).astype(complex)
+    X = np.column_stack(vecs_l).astype(complex)
+    res = np.concatenate(res_l)
+    order = _sort_leading(vals)
+    vals, X, res = vals[order], X[:, order], res[order]
+    trivial, tinfo = flag_trivial(vals, X, list(trivial_directions))
+    lead = res[~trivial][: max(int(nev), 0)]
+    info: dict[str, Any] = {
+        "method": "monodromy",
+        "blocks": [int(np.asarray(M).shape[0]) for M, _ in blocks],
+        "iterations": 0,
+        "operator_applications": 0,
+        "converged": True,
+        "ritz_change": 0.0,
+        "residuals": res,
+        "trivial_info": tinfo,
+    }
+    if period is not None and period > 0:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            info["exponents"] = np.log(vals) / period
+    return Stability(values=vals, kind="multipliers", trivial=trivial, vectors=X,
+                     residual=float(np.max(lead)) if lead.size else 0.0, info=info)

@@ -21,6 +21,18 @@ evaluation each). Small systems may ask for the dense Jacobian
 multipliers by matrix-free Arnoldi on ``v -> exp(θL) Dφ_T(u) v``
 (:mod:`contfil.engine.linalg.floquet`).
 
+Models with exact tangents (the ``flow_tangent`` hook, one *sweep* gives
+``φ``, ``Dφ``, ``∂_Tφ``, ``∂_pφ``): the corrector's Jacobian is exact where
+the residual is converged (``exact_below``: the tangent, the events and the
+Floquet multipliers use it) and is carried between Newton iterations and
+from point to point by Broyden updates of the flow rows elsewhere
+(``jacobian_update="broyden"``; each iteration then costs one flow); a new
+sweep is taken when an iteration does not halve the residual. Multipliers
+come from the monodromy itself (no Arnoldi); for a subspace solve the
+in-plane block is the reduced model's monodromy and the block normal to the
+subspace is one sweep of the full model in those directions only. Period
+means are the sweep's samples (no extra flows).
+
 Invariant subspaces (``subspace="planar"``): the orbit is solved in the
 subspace's reduced model (cheaper); stability is computed in the full model
 at the embedded orbit, so modes leaving the subspace are seen.
@@ -37,7 +49,7 @@ from numpy.typing import NDArray
 
 from contfil.engine.branch import PERIODIC_ORBIT, RELATIVE_PERIODIC_ORBIT
 from contfil.engine.flows.ops import FlowOps
-from contfil.engine.linalg.floquet import floquet_multipliers
+from contfil.engine.linalg.floquet import floquet_from_blocks, floquet_multipliers
 from contfil.engine.problems.base import Problem, Stability, resolve_params
 from contfil.errors import DomainError, SpecError
 from contfil.protocol import Model, param_index
@@ -86,6 +98,13 @@ class PeriodicOrbitProblem(Problem):
     flow_kwargs, fd_rel, fd_central:
         Passed to :class:`~contfil.engine.flows.ops.FlowOps` (keywords of a
         model's own ``flow``; finite-difference increment and scheme).
+    jacobian_update:
+        With exact tangents only: ``"broyden"`` (default; exact sweeps at
+        converged points, Broyden updates in between) or ``"exact"`` (a
+        sweep at every Newton iteration).
+    exact_below:
+        Residual (max norm) at or below which a point counts as converged
+        and gets an exact sweep (``"broyden"`` mode).
     """
 
     kind = PERIODIC_ORBIT
@@ -114,7 +133,12 @@ class PeriodicOrbitProblem(Problem):
         flow_kwargs: dict[str, Any] | None = None,
         fd_rel: float = 1e-7,
         fd_central: bool = False,
+        jacobian_update: str = "broyden",
+        exact_below: float = 1e-9,
     ) -> None:
+        if jacobian_update not in ("broyden", "exact"):
+            raise SpecError(
+                f"jacobian_update must be 'broyden' or 'exact', got {jacobian_update!r}")
         self.model = model
         self.param = param
         self.ip = param_index(model, param)
@@ -141,11 +165,19 @@ class PeriodicOrbitProblem(Problem):
         self._full_ops: FlowOps | None = None if self.subspace is not None else self.ops
         self.dim = int(self.solve_model.dim)
         self.n = self.dim + self.n_extra
-        self.dense = self.n <= dense_threshold
+        # with exact tangents the dense Jacobian comes from the same sweep as a jvp
+        self.dense = self.n <= dense_threshold or self.ops.has_sweep
         self.nev = int(nev)
         self.floquet_tol = float(floquet_tol)
         self.floquet_kmax = floquet_kmax
         self.period_means = int(period_means)
+        # exact tangents: one sweep per Jacobian, period samples taken along it
+        self.broyden = self.ops.has_sweep and jacobian_update == "broyden"
+        self.exact_below = float(exact_below)
+        if self.ops.has_sweep:
+            self.ops.samples = self.period_means
+        self._rec: tuple[bytes, Array, Array] | None = None
+        self._J: dict[str, Any] | None = None
         self.u_ref: Array | None = None
         self.f_ref: Array | None = None
         if u_ref is not None:
@@ -163,6 +195,12 @@ class PeriodicOrbitProblem(Problem):
         """Flow evaluations so far (solve model, plus the full model for stability)."""
         extra = self._full_ops.flow_evals if self._full_ops not in (None, self.ops) else 0
         return self.ops.flow_evals + extra
+
+    @property
+    def tangent_sweeps(self) -> int:
+        """Exact tangent sweeps so far (solve model and full model)."""
+        extra = self._full_ops.tangent_sweeps if self._full_ops not in (None, self.ops) else 0
+        return self.ops.tangent_sweeps + extra
 
     def params_at(self, p: float) -> Array:
         """Full parameter vector with the continuation entry set to ``p``."""
@@ -189,7 +227,13 @@ class PeriodicOrbitProblem(Problem):
         u, T = self.split(x)
         _check_period(T)
         phi = self.ops.flow(u, self.params_at(p), T)
+        self._record(x, p, phi - u)
         return np.concatenate([phi - u, [self.f_ref @ (u - self.u_ref)]])
+
+    def _record(self, x: Array, p: float, rows: Array) -> None:
+        """Keep the flow rows of the last residual (Broyden secants)."""
+        X = np.append(np.asarray(x, dtype=float), p)
+        self._rec = (X.tobytes(), X, np.array(rows, dtype=float))
 
     def jvp(self, x: Array, p: float, v: Array, g0: Array | None = None) -> Array:
         self._ensure_ref(x, p)
@@ -199,6 +243,77 @@ class PeriodicOrbitProblem(Problem):
         return np.concatenate([d - vu, [self.f_ref @ vu]])
 
     def jacobian(self, x: Array, p: float) -> Array:
+        if self.broyden:
+            return self._extended(x, p)[:, :-1].copy()
+        return self._jacobian_exact(x, p)
+
+    def dp(self, x: Array, p: float) -> Array:
+        if self.broyden:
+            return self._extended(x, p)[:, -1].copy()
+        return self._dp_exact(x, p)
+
+    def _phase_rows(self) -> Array:
+        """The phase-condition rows of ``[G_x, G_p]`` (exact, linear)."""
+        R = np.zeros((self.n_extra, self.n + 1))
+        R[0, : self.dim] = self.f_ref
+        return R
+
+    def _extended(self, x: Array, p: float) -> Array:
+        """``[G_x, G_p]`` for the corrector with exact tangents: exact (one
+        sweep) at converged points, on the first call and after an iteration
+        that did not halve the residual; otherwise the last one with a
+        Broyden update of the flow rows along the secant from where it was
+        formed (iterations of one solve, and from one point to the next)."""
+        self._ensure_ref(x, p)
+        X = np.append(np.asarray(x, dtype=float), p)
+        key = X.tobytes()
+        J = self._J
+        if J is not None and J["key"] == key:
+            A = J["A"]
+        else:
+            rec = self._rec if self._rec is not None and self._rec[0] == key else None
+            res = np.inf if rec is None else float(np.max(np.abs(rec[2])))
+            stalled = (J is not None and J["res"] > self.exact_below
+                       and res > 0.5 * J["res"])
+            if (J is not None and J["exact"] and J["res"] <= self.exact_below
+                    and res <= self.exact_below):
+                # a last iteration below the tolerance of an exact sweep: the
+                # sweep stands for this point too (no update from a secant of
+                # round-off size)
+                A, rows = J["A"], rec[2]  # type: ignore[index]
+                u, T = self.split(x)
+                self.ops.adopt_sweep(u, self.params_at(p), T)
+                self._J = J = {"key": key, "X": X, "rows": rows, "res": res, "A": A,
+                               "exact": True}
+                out = A.copy()
+                out[self.dim :] = self._phase_rows()
+                return out
+            exact = J is None or rec is None or res <= self.exact_below or stalled
+            if exact:
+                A = np.empty((self.n, self.n + 1))
+                A[:, :-1] = self._jacobian_exact(x, p)
+                A[:, -1] = self._dp_exact(x, p)
+                rows = self._flow_rows(x, p)
+                res = float(np.max(np.abs(rows)))
+            else:
+                rows = rec[2]
+                A = J["A"].copy()
+                s = X - J["X"]
+                y = rows - J["rows"]
+                m = self.dim
+                A[:m] += np.outer(y - A[:m] @ s, s) / float(s @ s)
+            self._J = J = {"key": key, "X": X, "rows": rows, "res": res, "A": A,
+                           "exact": exact}
+        A = A.copy()
+        A[self.dim :] = self._phase_rows()
+        return A
+
+    def _flow_rows(self, x: Array, p: float) -> Array:
+        """The flow rows of the residual (cached flow: no new evaluation after a sweep)."""
+        u, T = self.split(x)
+        return self.ops.flow(u, self.params_at(p), T) - u
+
+    def _jacobian_exact(self, x: Array, p: float) -> Array:
         self._ensure_ref(x, p)
         u, T = self.split(x)
         q = self.params_at(p)
@@ -209,7 +324,7 @@ class PeriodicOrbitProblem(Problem):
         J[n, :n] = self.f_ref
         return J
 
-    def dp(self, x: Array, p: float) -> Array:
+    def _dp_exact(self, x: Array, p: float) -> Array:
         u, T = self.split(x)
         d = self.ops.dflow_dp(u, self.params_at(p), T)
         G = self._drift_map(x)
@@ -256,18 +371,19 @@ class PeriodicOrbitProblem(Problem):
         """Period means ``mean_<name>`` of the scalar observables (``k`` samples)."""
         u, T = self.split(x)
         q = self.params_at(p)
+        sw = self.ops.cached_sweep(u, q, T) if self.ops.has_sweep else None
+        if sw is not None and sw.samples is not None and len(sw.samples) == k:
+            # taken along the sweep's base flow: no extra flows
+            emb = (lambda v: np.asarray(self.subspace.embed(v), dtype=float)) if self.subspace \
+                else (lambda v: v)
+            return _means([self.model.observables(emb(v), q) for v in sw.samples])
         samples = []
         for _ in range(k):
             full = np.asarray(self.subspace.embed(u), dtype=float) if self.subspace else u
             samples.append(self.model.observables(full, q))
             # the samples need no drift: observables are symmetry-invariant or read per frame
             u = self.ops.flow(u, q, T / k)
-        out: dict[str, float] = {}
-        for name, v0 in samples[0].items():
-            if np.isscalar(v0) and np.isreal(v0):
-                # periodic trapezoid rule = plain mean of equally spaced samples
-                out[f"mean_{name}"] = float(np.mean([float(s[name]) for s in samples]))
-        return out
+        return _means(samples)
 
     def default_events(self) -> list:
         """Fold, branch point, period doubling and torus of cycles, and for a
@@ -289,7 +405,10 @@ class PeriodicOrbitProblem(Problem):
         return dirs
 
     def stability(self, x: Array, p: float, vectors: bool = True) -> Stability:
-        """Floquet multipliers of the full model's monodromy (matrix-free Arnoldi)."""
+        """Floquet multipliers of the full model's monodromy: from the monodromy
+        itself when the model has exact tangents, else matrix-free Arnoldi."""
+        if self.ops.has_sweep and (self.subspace is None or self.full_ops.has_sweep):
+            return self._stability_from_monodromy(x, p)
         U = self.state(x)
         T = float(x[self.dim])
         q = self.params_at(p)
@@ -312,6 +431,37 @@ class PeriodicOrbitProblem(Problem):
         )
         st.info["flow_evals"] = ops.flow_evals + ops.tangent_evals - before
         st.info["exact_tangent"] = ops.exact_tangent
+        return st
+
+    def _stability_from_monodromy(self, x: Array, p: float) -> Stability:
+        """All multipliers from exact monodromies: the solve model's at the
+        orbit, and for a subspace solve the full model's block in the
+        directions normal to the subspace (the subspace is invariant, so the
+        full monodromy is block triangular in ``[E, C]``; its coupling out of
+        ``C`` is reported as ``info["block_coupling"]``)."""
+        u, T = self.split(x)
+        q = self.params_at(p)
+        G = self._drift_map(x)
+        before = self.tangent_sweeps
+        M = self.ops.monodromy(u, q, T)
+        M = M if G is None else G @ M
+        if self.subspace is None:
+            blocks = [(M, np.eye(self.dim))]
+            coupling = 0.0
+        else:
+            E = np.column_stack([np.asarray(self.subspace.embed(e), dtype=float)
+                                 for e in np.eye(self.dim)])
+            Qe = np.linalg.qr(E)[0]
+            C = np.linalg.svd(np.eye(E.shape[0]) - Qe @ Qe.T)[0][:, : E.shape[0] - self.dim]
+            MC = self.full_ops.tangent_block(self.state(x), q, T, C)
+            Moo = C.T @ MC
+            coupling = float(np.linalg.norm(MC - C @ Moo) / max(np.linalg.norm(MC), 1e-300))
+            blocks = [(M, E), (Moo, C)]
+        st = floquet_from_blocks(blocks, self.trivial_directions(x, p), nev=self.nev, period=T)
+        st.info["block_coupling"] = coupling
+        # sweeps taken here (0 for the solve model's when the corrector's is reused)
+        st.info["tangent_sweeps"] = self.tangent_sweeps - before
+        st.info["exact_tangent"] = True
         return st
 
 
@@ -374,7 +524,9 @@ class RelativePeriodicOrbitProblem(PeriodicOrbitProblem):
         th = float(x[self.dim + 1])
         phi = self.ops.flow(u, self.params_at(p), T)
         d = u - self.u_ref
-        return np.concatenate([self.G(th) @ phi - u, [self.f_ref @ d, self.l_ref @ d]])
+        rows = self.G(th) @ phi - u
+        self._record(x, p, rows)
+        return np.concatenate([rows, [self.f_ref @ d, self.l_ref @ d]])
 
     def jvp(self, x: Array, p: float, v: Array, g0: Array | None = None) -> Array:
         self._ensure_ref(x, p)
@@ -388,7 +540,17 @@ class RelativePeriodicOrbitProblem(PeriodicOrbitProblem):
             d = d + vth * (self.L @ (G @ self.ops.flow(u, q, T)))
         return np.concatenate([d - vu, [self.f_ref @ vu, self.l_ref @ vu]])
 
-    def jacobian(self, x: Array, p: float) -> Array:
+    def _phase_rows(self) -> Array:
+        R = np.zeros((self.n_extra, self.n + 1))
+        R[0, : self.dim] = self.f_ref
+        R[1, : self.dim] = self.l_ref
+        return R
+
+    def _flow_rows(self, x: Array, p: float) -> Array:
+        u, T = self.split(x)
+        return self.G(float(x[self.dim + 1])) @ self.ops.flow(u, self.params_at(p), T) - u
+
+    def _jacobian_exact(self, x: Array, p: float) -> Array:
         self._ensure_ref(x, p)
         u, T = self.split(x)
         th = float(x[self.dim + 1])
@@ -408,6 +570,16 @@ class RelativePeriodicOrbitProblem(PeriodicOrbitProblem):
 
     def _drift_map(self, x: Array) -> Array | None:
         return self.G(float(x[self.dim + 1]))
+
+
+def _means(samples: list[Any]) -> dict[str, float]:
+    """``mean_<name>`` of the scalar observables of equally spaced samples
+    (the periodic trapezoid rule is the plain mean)."""
+    out: dict[str, float] = {}
+    for name, v0 in samples[0].items():
+        if np.isscalar(v0) and np.isreal(v0):
+            out[f"mean_{name}"] = float(np.mean([float(s[name]) for s in samples]))
+    return out
 
 
 def _check_period(T: float) -> None:

@@ -57,24 +57,31 @@ class FixedStepFlow:
     Every other attribute is the wrapped model's. The planar invariant
     subspace returns a wrapped reduced model, so a shooting problem solved in
     the subspace and its 3D stability use the same time step ``T/steps``.
-    ``flow_calls`` counts time-stepper calls (the honest cost unit).
+    ``flow_calls`` counts time-stepper calls (the honest cost unit),
+    ``tangent_calls`` the exact tangent sweeps (:meth:`flow_tangent`;
+    ``tangent_fd``: ``"central"`` or the cheaper ``"forward"`` differences of
+    each step's increment columns).
     """
 
     def __init__(
-        self, model: FilamentModel, steps: int = STEPS_PER_PERIOD, **stepper_kw: Any
+        self, model: FilamentModel, steps: int = STEPS_PER_PERIOD, tangent_fd: str = "central",
+        **stepper_kw: Any,
     ) -> None:
         if int(steps) < 1:
             raise ValueError(f"FixedStepFlow: steps must be >= 1, got {steps!r}")
         self.base = model
         self.steps = int(steps)
         self.stepper_kw = dict(stepper_kw)
+        self.tangent_fd = tangent_fd
         self.flow_calls = 0
+        self.tangent_calls = 0
         sym = model.symmetries
         subs = {}
         for name, sub in sym.invariant_subspaces.items():
             subs[name] = InvariantSubspace(
                 name, sub.embed, sub.project,
-                lambda sub=sub: FixedStepFlow(sub.reduced_model(), self.steps, **self.stepper_kw),
+                lambda sub=sub: type(self)(sub.reduced_model(), self.steps, self.tangent_fd,
+                                           **self.stepper_kw),
             )
         self.symmetries = Symmetries(list(sym.continuous), dict(sym.reflections), subs)
 
@@ -85,6 +92,17 @@ class FixedStepFlow:
         """``phi_T(u)`` by ``steps`` BDF2 steps of size ``T/steps``."""
         self.flow_calls += 1
         return _stepper.flow(self.base, u, p, T, steps=self.steps, **self.stepper_kw)
+
+    def flow_tangent(self, u: Array, p: Array, T: float, V: Array | None = None,
+                     param_index: int | None = None, samples: int = 0) -> Any:
+        """Exact tangent of :meth:`flow` (same ``steps``): one sweep, counted
+        in ``tangent_calls`` (its cost in flows is measured in
+        ``benchmarks/orbit_cost.py``)."""
+        self.tangent_calls += 1
+        # period samples only where they fall on steps (else the caller flows)
+        k = samples if samples and self.steps % samples == 0 else 0
+        return self.base.flow_tangent(u, p, T, V, param_index=param_index, samples=k,
+                                      steps=self.steps, fd=self.tangent_fd, **self.stepper_kw)
 
 
 def planar(model: FilamentModel) -> FilamentModel:

@@ -141,6 +141,21 @@ class FilamentModel:
             steps = default_steps(T)
         return stepper.flow(self, u, p, T, steps=steps, dt=dt, **stepper_kw)
 
+    def flow_tangent(
+        self, u: Array, p: Array, T: float, V: Array | None = None,
+        param_index: int | None = None, samples: int = 0, steps: int | None = None,
+        **stepper_kw: Any,
+    ) -> Any:
+        """Exact tangent of :meth:`flow` (the protocol's optional hook):
+        :func:`contfil.models.filament.integrators.bdf2_tangent.flow_tangent`
+        with ``dphi/dp`` when ``param_index`` is given."""
+        from .integrators.bdf2_tangent import flow_tangent
+
+        n = default_steps(T) if steps is None else int(steps)
+        k = samples if samples and n % samples == 0 else 0
+        return flow_tangent(self, u, p, T, V, steps=n, want_p=param_index is not None,
+                            samples=k, **stepper_kw)
+
     # -- geometry helpers -------------------------------------------------
     def full_state(self, u: Array) -> Array:
         """The 3D state ``U`` (planar states are embedded as ``U_n = (0, phi_n, 0)``)."""

@@ -1,0 +1,294 @@
+"""Cost of one beating continuation point: finite-difference shooting against exact tangents.
+
+Issue 10. The tip SF filament (``branches/tip_sf.toml``, N = 20, RPY), planar
+beating solved by shooting in the planar subspace with BDF2 at ``T/400``,
+Floquet multipliers of the 3D monodromy (13 leading), period means of the
+observables over 8 samples (the product's ``PERIOD_MEANS``): one
+pseudo-arclength step from b1 = 716.5 to ~742.5, Newton tolerance 1e-10
+(the product's settings), once per path in the same process:
+
+- ``before``: today's path, the same flow without the ``flow_tangent`` hook
+  (Newton on a finite-difference monodromy, Arnoldi on finite-difference
+  products, extra flows for the period means);
+- ``after``: exact tangents (``flow_tangent``): exact Jacobians at converged
+  points and Broyden updates in between, multipliers from the planar
+  monodromy and one 3D sweep of the out-of-plane block, period means along
+  the sweep;
+- ``fwd``: the same with forward instead of central differences of each
+  step's increment columns (half the residuals, ~1e-8 tangents).
+
+Each path runs twice; the lesser CPU counts.
+
+Cost unit: one planar BDF2 flow over a period at ``T/400`` (CPU measured
+here); a 3D flow, a planar tangent sweep and a 3D out-of-plane sweep count
+at their measured CPU ratios to it. Also measured: the period error of BDF2
+at ``T/400`` (against Richardson extrapolation of ``T/800`` and
+``T/1600``, with that estimate's own error from ``T/400``/``T/800``), and
+the BDF2 step cost against the floor (RPY assembly + the 63x63 constraint
+LU + a 120x120 matvec).
+
+No higher-order integrator exists yet: ``cpu_vs_bdf2_T400`` is null.
+
+Run (single-threaded BLAS; CPU times of this process)::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py    (~10 min CPU)
+
+Ends with one JSON line.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+# this checkout's contfil, not an installed one
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_v, "1")
+
+import json  # noqa: E402
+import time  # noqa: E402
+from typing import Any  # noqa: E402
+
+import numpy as np  # noqa: E402
+import scipy.linalg as sla  # noqa: E402
+
+from contfil.engine.continuation.driver import Continuation, ContinuationSettings  # noqa: E402
+from contfil.engine.linalg.newton import newton_dense  # noqa: E402
+from contfil.engine.problems.shooting import PeriodicOrbitProblem  # noqa: E402
+from contfil.models.filament import FilamentModel  # noqa: E402
+from contfil.models.filament.cycles import FixedStepFlow  # noqa: E402
+from contfil.models.filament.integrators.bdf2 import embed_planar  # noqa: E402
+from contfil.models.filament.kernels import rpy as krpy  # noqa: E402
+from contfil.models.filament.kernels.geometry import configuration  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+P0, P1 = 716.5, 742.5
+STEPS = 400
+PERIOD_MEANS = 8
+
+
+class NoTangentFlow(FixedStepFlow):
+    """Today's path: the same flow without the ``flow_tangent`` hook."""
+
+    flow_tangent = None  # type: ignore[assignment]
+
+
+class ForwardTangentFlow(FixedStepFlow):
+    """Exact tangents with forward differences of the increment columns."""
+
+    def __init__(self, model: FilamentModel, steps: int = STEPS,
+                 tangent_fd: str = "forward", **kw: Any) -> None:
+        super().__init__(model, steps, tangent_fd, **kw)
+
+
+def cpu(f: Any, repeat: int = 3) -> float:
+    """Least CPU seconds of ``repeat`` calls (other jobs only add time)."""
+    best = np.inf
+    for _ in range(repeat):
+        t = time.process_time()
+        f()
+        best = min(best, time.process_time() - t)
+    return best
+
+
+def problem(m: FilamentModel, p: float, cls: type = FixedStepFlow, steps: int = STEPS,
+            **kw: Any) -> PeriodicOrbitProblem:
+    return PeriodicOrbitProblem(cls(m, steps), "b1", np.array([p]), subspace="planar_xz",
+                                nev=13, floquet_tol=1e-8, **kw)
+
+
+def solve_at(m: FilamentModel, x0: np.ndarray, p: float, steps: int) -> np.ndarray:
+    """The orbit at fixed ``p`` by exact Newton (set-up, not measured)."""
+    pb = problem(m, p, steps=steps, jacobian_update="exact")
+    pb.set_reference(x0[:-1], p)
+    x, info = newton_dense(lambda z: pb.residual(z, p), lambda z: pb.jacobian(z, p), x0,
+                           tol=1e-11, max_iter=12)
+    if not info.converged:
+        raise SystemExit(f"set-up: orbit at b1 = {p} did not converge ({info.history})")
+    return x
+
+
+def start_orbit(m: FilamentModel) -> np.ndarray:
+    """Beating at b1 = 716.5 from the stored branch (interpolated, then solved)."""
+    d = json.loads((ROOT / "docs/figures/filament_tip_sf_beating.json").read_text())
+    pts = sorted(d["points"], key=lambda q: q["p"])
+    lo = max((q for q in pts if q["p"] <= P0), key=lambda q: q["p"])
+    hi = min((q for q in pts if q["p"] >= P0), key=lambda q: q["p"])
+    w = (P0 - lo["p"]) / (hi["p"] - lo["p"])
+    x0 = (1 - w) * np.array(lo["x"]) + w * np.array(hi["x"])
+    return solve_at(m, x0, P0, STEPS)
+
+
+def one_point(m: FilamentModel, x0: np.ndarray, cls: type, repeat: int = 2,
+              **kw: Any) -> dict[str, Any]:
+    """The least CPU of ``repeat`` runs of :func:`one_point_once`."""
+    runs = [one_point_once(m, x0, cls, **kw) for _ in range(repeat)]
+    return min(runs, key=lambda r: r["cpu"])
+
+
+def one_point_once(m: FilamentModel, x0: np.ndarray, cls: type, **kw: Any) -> dict[str, Any]:
+    """One continuation step 716.5 -> ~742.5 with stability and period means."""
+    pb = problem(m, P0, cls=cls, period_means=PERIOD_MEANS, **kw)
+    st = ContinuationSettings(ds=1.0, ds_max=1e9, ds_min=1e-9, max_points=2, adapt=False,
+                              newton_tol=1e-10, newton_max_iter=10, detect_events=False)
+    run = Continuation(pb, x0, P0, st)
+    it = iter(run)
+    first = next(it)
+    run.ds = (P1 - P0) / float(first.tangent[-1])  # the step lands near P1
+    planar, full = pb.solve_model, pb.model
+    f0 = (planar.flow_calls, full.flow_calls, planar.tangent_calls, full.tangent_calls)
+    t0 = time.process_time()
+    pt = next(it)
+    cpu_point = time.process_time() - t0
+    f1 = (planar.flow_calls, full.flow_calls, planar.tangent_calls, full.tangent_calls)
+    d = [b - a for a, b in zip(f0, f1, strict=True)]
+    nt = ~pt.trivial
+    return {
+        "p": pt.p, "T": pt.extra["period"], "cpu": cpu_point,
+        "planar_flows": d[0], "flows_3d": d[1], "planar_sweeps": d[2], "sweeps_3d": d[3],
+        "newton_iterations": int(pt.accuracy["newton_iterations"]),
+        "residual": pt.accuracy["residual"],
+        "multipliers": pt.eigenvalues[nt][:4],
+        "mean_E": pt.observables["mean_bending_energy"],
+        "x": np.concatenate([np.asarray(pt.u)[1::3], [pt.extra["period"]]]),
+    }
+
+
+def unit_costs(m: FilamentModel, x: np.ndarray, p: float) -> dict[str, float]:
+    """CPU of a planar flow (the unit), a 3D flow, a planar sweep, a 3D block sweep."""
+    fm = FixedStepFlow(m, STEPS)
+    pl = fm.symmetries.invariant_subspaces["planar_xz"].reduced_model()
+    phi, T = x[:-1], x[-1]
+    q = np.array([p])
+    U = embed_planar(phi)
+    n1 = phi.size
+    C = np.zeros((U.size, 2 * n1))
+    C[0::3, :n1] = np.eye(n1)
+    C[2::3, n1:] = np.eye(n1)
+    unit = cpu(lambda: pl.flow(phi, q, T))
+    return {
+        "unit_cpu": unit,
+        "flow_3d": cpu(lambda: fm.flow(U, q, T)) / unit,
+        "sweep_planar": cpu(lambda: pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
+        "sweep_3d_block": cpu(lambda: fm.flow_tangent(U, q, T, C), 2) / unit,
+        "sweep_planar_fwd": cpu(lambda: ForwardTangentFlow(pl.base).flow_tangent(
+            phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
+        "sweep_3d_block_fwd": cpu(lambda: ForwardTangentFlow(m).flow_tangent(U, q, T, C), 2)
+        / unit,
+    }
+
+
+def floor_ratio(m: FilamentModel, x: np.ndarray, unit_cpu: float) -> float:
+    """BDF2 step CPU over the floor: RPY assembly + 63x63 LU + 120x120 matvec."""
+    U = embed_planar(x[:-1])
+    _, _, X = configuration(U, m.dL)
+    sc = m.scene
+    A = np.random.default_rng(0).standard_normal((63, 63)) + 63 * np.eye(63)
+    v = np.ones(120)
+
+    def floor() -> None:
+        for _ in range(200):
+            Mb = krpy.rpy_mobility(X, sc.a, sc.eta)
+            sla.lu_factor(A, check_finite=False)
+            Mb @ v
+
+    return (unit_cpu / STEPS) / (cpu(floor) / 200)
+
+
+def solve_at_with_mu(m: FilamentModel, x0: np.ndarray, p: float,
+                     steps: int) -> tuple[np.ndarray, complex]:
+    """The orbit and its leading non-trivial multiplier (out of plane) at ``steps``."""
+    x = solve_at(m, x0, p, steps)
+    pb = problem(m, p, steps=steps)
+    pb.set_reference(x[:-1], p)
+    st = pb.stability(x, p)
+    return x, complex(st.values[~st.trivial][0])
+
+
+def period_error(m: FilamentModel, x: np.ndarray, p: float) -> dict[str, Any]:
+    """BDF2 period and leading multiplier at T/400 against Richardson (T/800, T/1600)."""
+    T, mu = {}, {}
+    xs = x
+    for n in (400, 800, 1600):
+        xs, mu[n] = solve_at_with_mu(m, xs, p, n)
+        T[n] = float(xs[-1])
+    ref = (4 * T[1600] - T[800]) / 3
+    ref_coarse = (4 * T[800] - T[400]) / 3
+    mref = (4 * mu[1600] - mu[800]) / 3
+    return {"T400": T[400], "T800": T[800], "T1600": T[1600], "T_ref": ref,
+            "period_error": abs(T[400] - ref) / ref, "ref_error_estimate": abs(ref - ref_coarse),
+            "observed_order": float(np.log2(abs(T[400] - T[800]) / abs(T[800] - T[1600]))),
+            "mu": mu, "mu_ref": mref, "mu_error": abs(mu[400] - mref),
+            "mu_ref_error_estimate": abs(mref - (4 * mu[800] - mu[400]) / 3)}
+
+
+def main() -> None:
+    m = FilamentModel(ROOT / "branches" / "tip_sf.toml")
+    x0 = start_orbit(m)
+    print(f"start: b1 = {P0}, T = {x0[-1]:.8f}", flush=True)
+    # warm the compiled kernels of both paths (not measured)
+    unit_costs(m, x0, P0)
+    before = one_point(m, x0, NoTangentFlow, fd_central=False)
+    after = one_point(m, x0, FixedStepFlow)
+    fwd = one_point(m, x0, ForwardTangentFlow)
+    uc = unit_costs(m, after["x"], after["p"])
+    flows_before = before["planar_flows"] + uc["flow_3d"] * before["flows_3d"]
+
+    def flows(r: dict[str, Any], suffix: str = "") -> float:
+        return (r["planar_flows"] + uc["flow_3d"] * r["flows_3d"]
+                + uc["sweep_planar" + suffix] * r["planar_sweeps"]
+                + uc["sweep_3d_block" + suffix] * r["sweeps_3d"])
+
+    flows_after, flows_fwd = flows(after), flows(fwd, "_fwd")
+    for name, r in (("before", before), ("after", after), ("fwd", fwd)):
+        print(f"{name:6s}: b1 = {r['p']:.6f} T = {r['T']:.10f} Newton it = "
+              f"{r['newton_iterations']} residual = {r['residual']:.1e} | planar flows "
+              f"{r['planar_flows']}, 3D flows {r['flows_3d']}, planar sweeps "
+              f"{r['planar_sweeps']}, 3D sweeps {r['sweeps_3d']} | CPU {r['cpu']:.2f} s | "
+              f"mu = {np.round(r['multipliers'], 6)} | mean E = {r['mean_E']:.8f}", flush=True)
+    print(f"unit (planar flow T/400) = {uc['unit_cpu']:.4f} s CPU; 3D flow = "
+          f"{uc['flow_3d']:.2f}, planar sweep = {uc['sweep_planar']:.2f} (forward "
+          f"{uc['sweep_planar_fwd']:.2f}), 3D out-of-plane sweep = {uc['sweep_3d_block']:.2f} "
+          f"(forward {uc['sweep_3d_block_fwd']:.2f}) units")
+    print(f"flows per point: before {flows_before:.1f}, after {flows_after:.1f}, "
+          f"after with forward differences {flows_fwd:.1f}")
+    diff_T = abs(before["T"] - after["T"])
+    diff_mu = float(np.max(np.abs(before["multipliers"] - after["multipliers"])))
+    print(f"before vs after: |dT| = {diff_T:.1e}, max |d mu| (4 leading) = {diff_mu:.1e}")
+    pe = period_error(m, after["x"], after["p"])
+    print(f"period: T/400 {pe['T400']:.10f}, T/800 {pe['T800']:.10f}, T/1600 "
+          f"{pe['T1600']:.10f}; Richardson {pe['T_ref']:.10f} (+- {pe['ref_error_estimate']:.1e})"
+          f"; relative error of T/400 = {pe['period_error']:.2e}; observed order "
+          f"{pe['observed_order']:.2f}")
+    print(f"leading multiplier (out of plane): T/400 {pe['mu'][400].real:.8f}, T/800 "
+          f"{pe['mu'][800].real:.8f}, T/1600 {pe['mu'][1600].real:.8f}; Richardson "
+          f"{pe['mu_ref'].real:.8f} (+- {pe['mu_ref_error_estimate']:.1e}); error of T/400 = "
+          f"{pe['mu_error']:.2e}")
+    fr = floor_ratio(m, after["x"], uc["unit_cpu"])
+    out = {
+        "flows_per_point": round(flows_after, 2),
+        "flows_per_point_before": round(flows_before, 2),
+        "cpu_per_point_vs_before": round(after["cpu"] / before["cpu"], 4),
+        "cpu_per_point_s": round(after["cpu"], 3),
+        "cpu_per_point_before_s": round(before["cpu"], 3),
+        "flows_per_point_forward_fd": round(flows_fwd, 2),
+        "cpu_per_point_vs_before_forward_fd": round(fwd["cpu"] / before["cpu"], 4),
+        "period_error": float(f"{pe['period_error']:.3e}"),
+        "period_error_method": "relative, BDF2 T/400 vs Richardson(T/800, T/1600)",
+        "cpu_vs_bdf2_T400": None,  # no higher-order integrator yet
+        "step_vs_floor": round(fr, 2),
+        "step_vs_floor_new_integrator": None,
+        "sweep_planar_units": round(uc["sweep_planar"], 2),
+        "sweep_3d_block_units": round(uc["sweep_3d_block"], 2),
+        "flow_3d_units": round(uc["flow_3d"], 2),
+        "dT_before_after": float(f"{diff_T:.2e}"),
+        "dmu_before_after": float(f"{diff_mu:.2e}"),
+        "multiplier_error": float(f"{pe['mu_error']:.3e}"),
+    }
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main()

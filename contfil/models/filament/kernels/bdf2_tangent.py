@@ -1,0 +1,431 @@
+"""Tangent-linear of one geometric BDF2 step (numba kernels).
+
+The discrete map, not the ODE, is differentiated. A converged step ``k ->
+k+1`` satisfies ``R(z; q^k, x^k, x^{k-1}, u^k, dt, s) = 0``
+(:mod:`.bdf2_residual`, scaled reduced layout), so for any perturbation of
+its inputs
+
+    dz = -(dR/dz)^{-1} (dR/dth^k dth^k + dR/dx^k dx^k + dR/dx^{k-1} dx^{k-1}
+                        + dR/du^k du^k + dR/ddt ddt + dR/ds ds)
+
+with ``dth^k`` the spatial rotation vectors perturbing the frames ``q^k``
+(``q -> exp(dth) q``). The pieces:
+
+- ``dR/dz``: the load columns are exact (:func:`load_columns`: ``R`` is
+  affine in the loads at fixed frames, the mobility at the step's positions
+  and ``dexp_inv(u, .)`` are exactly the ones of the residual); the
+  ``u`` columns (frames move: mobility, positions, squirming, elastic
+  torques all change) are central differences of the compiled residual,
+  step :data:`FD_H` (error ~1e-10 relative, measured in the tests);
+- ``dR/dth^k``: ``q_m^{k+1} = exp(u_m) q_m^k``, so a perturbation ``dth``
+  of ``q_m^k`` moves the new frame by ``Rot(u_m) dth``, the same as the
+  increment change ``du' = dexp(u_m)^{-1} Rot(u_m) dth`` except for the
+  explicit ``u`` of the orientation rows: ``dR/dth = (dR/du - E) du'/dth``,
+  ``E_n = I - g dt d_u dexp_inv(u_n, Omega_n)``;
+- ``dR/dx^k = -a1/dL``, ``dR/dx^{k-1} = -a2/dL`` (position rows),
+  ``dR/du^k = -b1`` (orientation rows): exact, linear;
+- ``dR/ddt`` at fixed physical unknowns: ``-g V/dL`` and ``-g
+  dexp_inv(u, Omega)``;
+- ``dR/ds``: ``R`` is affine in the actuation strength (follower force and
+  squirming velocity are linear in it), so a central difference with a unit
+  step is exact up to round-off.
+
+``dR/dz`` is factored once per step and all directions (the monodromy
+columns, ``d/dT`` through ``ddt = dT/steps``, ``d/ds``) are solved together.
+The new frames move by ``dth^{k+1} = dexp(u) du + Rot(u) dth^k``, the
+positions by the robot-arm relation.
+
+Selected blocks: ``zmap``/``rmap`` (full indices) pick the tangent system,
+the planar one (planar perturbations of a planar orbit), the out-of-plane
+one (the block normal to the plane along a planar orbit) or all of it; the
+tangent arrays hold the selected components only (``dth``, ``du``: the
+entries of ``zmap`` below ``3(N-1)``; ``dx``: the position rows of
+``rmap``). The per-segment 3x3 blocks are restricted to them, which is exact
+because the block is invariant (rotations about e2 map e2 to itself and the
+e2-normal plane to itself). The residual itself is always evaluated on the
+full unknowns, so the block need not be the one the stepper solved.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .bdf2_jacobian import _load_jacobian
+from .bdf2_residual import (
+    C_A1,
+    C_A2,
+    C_B1,
+    C_DT,
+    C_G,
+    frames_at,
+    residual,
+    unpack_loads,
+    velocities,
+)
+from .effects import F_HYDRO, HYD_RPY, P_A, P_DL, P_ETA
+from .geometry import positions, tangents
+from .quaternion import dexp_inv, dexp_matrix, qexp, qrotmat
+from .rpy import rpy_mobility, self_mobilities
+
+#: Central-difference step (radians) of the increment columns of dR/dz:
+#: ~eps^(1/3), the optimum of a central difference of an O(1) function.
+FD_H = 5e-6
+#: Forward-difference step (the cheaper option, one residual per column):
+#: ~sqrt(eps), error ~1e-8 relative.
+FD_H_FORWARD = 2e-8
+#: Step of the central difference of dexp_inv in u (a 3-vector closed form).
+FD_H_DEXP = 1e-5
+
+
+@njit(cache=True)
+def reduced_counts(zmap: np.ndarray, rmap: np.ndarray, N: int) -> tuple[int, int]:
+    """(nu, npos): reduced increment unknowns and position rows."""
+    nu = 0
+    for i in range(zmap.shape[0]):
+        if zmap[i] < 3 * (N - 1):
+            nu += 1
+    npos = 0
+    for i in range(rmap.shape[0]):
+        if rmap[i] < 3 * N:
+            npos += 1
+    return nu, npos
+
+
+@njit(cache=True)
+def _segment_blocks(zf: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per moving segment m = 1..N-1: ``B = dexp(u_m)``, ``A = dexp_inv(u_m)``,
+    ``Rot(u_m)`` (each (N-1, 3, 3))."""
+    B = np.empty((N - 1, 3, 3))
+    A = np.empty((N - 1, 3, 3))
+    Rt = np.empty((N - 1, 3, 3))
+    u = np.empty(3)
+    for m in range(N - 1):
+        for k in range(3):
+            u[k] = zf[3 * m + k]
+        B[m] = dexp_matrix(u, False)
+        A[m] = dexp_matrix(u, True)
+        Rt[m] = qrotmat(qexp(u))
+    return B, A, Rt
+
+
+@njit(cache=True)
+def _reduced_block(blocks: np.ndarray, zmap: np.ndarray, nu: int) -> np.ndarray:
+    """Block-diagonal (nu, nu) matrix of per-segment 3x3 ``blocks`` on the
+    reduced increment unknowns."""
+    M = np.zeros((nu, nu))
+    for i in range(nu):
+        mi, ci = zmap[i] // 3, zmap[i] % 3
+        for j in range(nu):
+            mj, cj = zmap[j] // 3, zmap[j] % 3
+            if mi == mj:
+                M[i, j] = blocks[mi, ci, cj]
+    return M
+
+
+@njit(cache=True)
+def load_columns(
+    zf: np.ndarray,
+    qk: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    nu: int,
+) -> np.ndarray:
+    """Exact load columns ``dR/dz[:, nu:]`` (scaled) of the selected block.
+
+    ``R`` is affine in the loads at fixed frames: ``dR/dz_load = -g dt D M
+    G_load`` with the mobility ``M`` at the step's positions, ``D =
+    blockdiag(I/dL, dexp_inv(u_n))`` and ``G_load`` the load incidence of
+    :func:`~.bdf2_jacobian._load_jacobian` (only its load columns are
+    multiplied, not the whole ``6N x 6N`` matrix).
+    """
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nl = nz - nu
+    dL = par[P_DL]
+    gdt = coef[C_G] * coef[C_DT]
+    q = np.empty((N, 4))
+    frames_at(zf, qk, q)
+    t = tangents(q)
+    Lam, _, _ = unpack_loads(zf, N)
+    G = _load_jacobian(q, t, Lam, par, scale[3 * (N - 1)], scale[6 * N - 1])
+    Gl = np.empty((6 * N, nl))
+    for i in range(6 * N):
+        for j in range(nl):
+            Gl[i, j] = G[i, zmap[nu + j]]
+    if flags[F_HYDRO] == HYD_RPY:
+        MG = rpy_mobility(positions(t, dL), par[P_A], par[P_ETA]) @ Gl
+    else:
+        mt, mr = self_mobilities(par[P_A], par[P_ETA])
+        MG = Gl.copy()
+        for i in range(3 * N):
+            for j in range(nl):
+                MG[i, j] *= mt
+                MG[3 * N + i, j] *= mr
+    out = np.empty((nz, nl))
+    u = np.zeros(3)
+    for i in range(nz):
+        r = rmap[i]
+        if r < 3 * N:
+            for j in range(nl):
+                out[i, j] = -gdt / dL * MG[r, j]
+        else:
+            n, c = (r - 3 * N) // 3, (r - 3 * N) % 3
+            if n == 0:
+                for j in range(nl):
+                    out[i, j] = -gdt * MG[r, j]
+            else:
+                for k in range(3):
+                    u[k] = zf[3 * (n - 1) + k]
+                A = dexp_matrix(u, True)
+                for j in range(nl):
+                    out[i, j] = -gdt * (A[c, 0] * MG[3 * N + 3 * n, j]
+                                        + A[c, 1] * MG[3 * N + 3 * n + 1, j]
+                                        + A[c, 2] * MG[3 * N + 3 * n + 2, j])
+    return out
+
+
+@njit(cache=True)
+def dpositions(t: np.ndarray, dth: np.ndarray, dL: float) -> np.ndarray:
+    """Robot-arm position change (N, 3) for frame rotations ``dth`` (N, 3)
+    (``dt_m = dth_m x t_m``; segment 0 is clamped)."""
+    N = t.shape[0]
+    dX = np.zeros((N, 3))
+    acc = np.zeros(3)  # dL * sum_{m < n, m >= 1} dt_m
+    for n in range(1, N):
+        dtn = np.empty(3)
+        dtn[0] = dth[n, 1] * t[n, 2] - dth[n, 2] * t[n, 1]
+        dtn[1] = dth[n, 2] * t[n, 0] - dth[n, 0] * t[n, 2]
+        dtn[2] = dth[n, 0] * t[n, 1] - dth[n, 1] * t[n, 0]
+        for k in range(3):
+            dX[n, k] = acc[k] + 0.5 * dL * dtn[k]
+            acc[k] += dL * dtn[k]
+    return dX
+
+
+@njit(cache=True)
+def step_matrices(
+    zf: np.ndarray,
+    qk: np.ndarray,
+    xk: np.ndarray,
+    xkm1: np.ndarray,
+    uk: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    dpar: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    want_p: bool,
+    central: bool = True,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(J, Jth, c_dt, c_s)`` of a converged step (module docstring).
+
+    ``zf`` is the step's physical full unknown vector; ``zmap``/``rmap``
+    (full indices, increments first / position rows first) select the
+    tangent system, which may differ from the stepper's own (e.g. the
+    out-of-plane block along a planar orbit). ``J = dR/dz`` in the scaled
+    selected unknowns (nz, nz), ``Jth = dR/dth^k`` (nz, nu), ``c_dt =
+    dR/ddt`` and ``c_s = dR/ds`` (nz,; zero unless ``want_p``), ``dpar = d
+    par / ds``. ``central=False``: forward differences for the increment
+    columns (half the residuals, ~1e-8 instead of ~1e-10 relative error).
+    """
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nu, _ = reduced_counts(zmap, rmap, N)
+    g, dt = coef[C_G], coef[C_DT]
+    gdt = g * dt
+    dL = par[P_DL]
+    # the residual is evaluated on the full unknowns (identity maps), so the
+    # selected block may be any invariant one whatever the stepper solved
+    idm = np.arange(6 * N)
+    z = np.empty(6 * N)
+    for i in range(6 * N):
+        z[i] = zf[i] / scale[i]
+    J = np.empty((nz, nz))
+    Jl = load_columns(zf, qk, coef, par, flags, zmap, rmap, scale, nu)
+    for i in range(nz):
+        for j in range(nz - nu):
+            J[i, nu + j] = Jl[i, j]
+    q = np.empty((N, 4))
+    X = np.empty((N, 3))
+    rfull = np.empty(6 * N)
+    rp = np.empty(6 * N)
+    rm = np.empty(6 * N)
+    zp = z.copy()
+    if not central:
+        residual(z, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
+    for j in range(nu):
+        c = zmap[j]
+        if central:
+            zp[c] = z[c] + FD_H
+            residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
+            zp[c] = z[c] - FD_H
+            residual(zp, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
+            zp[c] = z[c]
+            for i in range(nz):
+                J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / (2.0 * FD_H)
+        else:
+            zp[c] = z[c] + FD_H_FORWARD
+            residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
+            zp[c] = z[c]
+            for i in range(nz):
+                J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / FD_H_FORWARD
+    # velocities at the converged step
+    frames_at(zf, qk, q)
+    t = tangents(q)
+    Xn = positions(t, dL)
+    Lam, Fc, Tc = unpack_loads(zf, N)
+    V, Om = velocities(q, t, Xn, Lam, Fc, Tc, par, flags)
+    rinv = -np.ones(6 * N, dtype=np.int64)
+    for i in range(nz):
+        rinv[rmap[i]] = i
+    # dR/ddt at fixed physical unknowns
+    cfull = np.empty(6 * N)
+    u = np.empty(3)
+    w = np.empty(3)
+    for n in range(N):
+        for k in range(3):
+            cfull[3 * n + k] = -g * V[n, k] / dL
+        if n == 0:
+            for k in range(3):
+                cfull[3 * N + k] = -g * Om[0, k]
+        else:
+            for k in range(3):
+                u[k] = zf[3 * (n - 1) + k]
+                w[k] = Om[n, k]
+            di = dexp_inv(u, w)
+            for k in range(3):
+                cfull[3 * N + 3 * n + k] = -g * di[k]
+    c_dt = np.empty(nz)
+    for i in range(nz):
+        c_dt[i] = cfull[rmap[i]]
+    # explicit u dependence E of the orientation rows, then Jth = (J_u - E) A Rot
+    E = np.zeros((nz, nu))
+    up = np.empty(3)
+    for j in range(nu):
+        m = zmap[j] // 3  # segment m + 1
+        c = zmap[j] % 3
+        for k in range(3):
+            u[k] = zf[3 * m + k]
+            w[k] = Om[m + 1, k]
+            up[k] = u[k]
+        up[c] = u[c] + FD_H_DEXP
+        dp_ = dexp_inv(up, w)
+        up[c] = u[c] - FD_H_DEXP
+        dm_ = dexp_inv(up, w)
+        for r in range(3):
+            ii = rinv[3 * N + 3 * (m + 1) + r]
+            if ii < 0:
+                continue
+            v = -gdt * (dp_[r] - dm_[r]) / (2.0 * FD_H_DEXP)
+            if r == c:
+                v += 1.0
+            E[ii, j] = v
+    B, A, Rt = _segment_blocks(zf, N)
+    ARt = np.empty((N - 1, 3, 3))
+    for m in range(N - 1):
+        ARt[m] = A[m] @ Rt[m]
+    Mr = _reduced_block(ARt, zmap, nu)
+    Ju = np.empty((nz, nu))
+    for i in range(nz):
+        for j in range(nu):
+            Ju[i, j] = J[i, j] - E[i, j]
+    Jth = Ju @ Mr
+    c_s = np.zeros(nz)
+    if want_p:
+        # R is affine in the strength: a unit central difference is exact
+        pp = par + dpar
+        pm = par - dpar
+        residual(z, rp, qk, xk, xkm1, uk, coef, pp, flags, idm, idm, scale, q, X, rfull)
+        residual(z, rm, qk, xk, xkm1, uk, coef, pm, flags, idm, idm, scale, q, X, rfull)
+        for i in range(nz):
+            c_s[i] = 0.5 * (rp[rmap[i]] - rm[rmap[i]])
+    return J, Jth, c_dt, c_s
+
+
+@njit(cache=True)
+def tangent_step(
+    zf: np.ndarray,
+    qk: np.ndarray,
+    xk: np.ndarray,
+    xkm1: np.ndarray,
+    uk: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    dpar: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    dth: np.ndarray,
+    dx: np.ndarray,
+    dxm1: np.ndarray,
+    du: np.ndarray,
+    ddt: np.ndarray,
+    ds: np.ndarray,
+    central: bool = True,
+) -> None:
+    """Propagate the batched tangents over one converged step, in place.
+
+    ``dth`` (nu, nd): frame perturbations at step k (reduced); ``dx``,
+    ``dxm1`` (npos, nd): position perturbations at k and k-1; ``du`` (nu,
+    nd): perturbation of the increments ``u^k``; ``ddt``, ``ds`` (nd,): the
+    step-size and strength perturbation of each direction. On return they
+    hold the perturbations at step k+1. ``central``: see :func:`step_matrices`.
+    """
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nd = dth.shape[1]
+    nu, npos = reduced_counts(zmap, rmap, N)
+    a1, a2, b1 = coef[C_A1], coef[C_A2], coef[C_B1]
+    dL = par[P_DL]
+    want_p = False
+    for d in range(nd):
+        if ds[d] != 0.0:
+            want_p = True
+    J, Jth, c_dt, c_s = step_matrices(zf, qk, xk, xkm1, uk, coef, par, dpar, flags,
+                                      zmap, rmap, scale, want_p, central)
+    rhs = Jth @ dth
+    for i in range(npos):
+        for d in range(nd):
+            rhs[i, d] += -(a1 * dx[i, d] + a2 * dxm1[i, d]) / dL
+    rinv = -np.ones(6 * N, dtype=np.int64)
+    for i in range(nz):
+        rinv[rmap[i]] = i
+    if b1 != 0.0:
+        for j in range(nu):
+            ii = rinv[3 * N + 3 * (zmap[j] // 3 + 1) + zmap[j] % 3]
+            for d in range(nd):
+                rhs[ii, d] -= b1 * du[j, d]
+    for i in range(nz):
+        for d in range(nd):
+            rhs[i, d] += c_dt[i] * ddt[d] + c_s[i] * ds[d]
+    dz = -np.linalg.solve(J, rhs)
+    # new frames: dth' = dexp(u) du' + Rot(u) dth
+    B, _, Rt = _segment_blocks(zf, N)
+    Br = _reduced_block(B, zmap, nu)
+    Rr = _reduced_block(Rt, zmap, nu)
+    dun = dz[:nu, :].copy()  # increments are unscaled unknowns
+    dthn = Br @ dun + Rr @ dth
+    q = np.empty((N, 4))
+    frames_at(zf, qk, q)
+    t = tangents(q)
+    full = np.zeros((N, 3))
+    for d in range(nd):
+        for j in range(nu):
+            full[zmap[j] // 3 + 1, zmap[j] % 3] = dthn[j, d]
+        dX = dpositions(t, full, dL)
+        for i in range(npos):
+            r = rmap[i]
+            dxm1[i, d] = dx[i, d]
+            dx[i, d] = dX[r // 3, r % 3]
+    for j in range(nu):
+        for d in range(nd):
+            du[j, d] = dun[j, d]
+            dth[j, d] = dthn[j, d]
