@@ -409,3 +409,17 @@ def test_model_flow_hook_delegates_here(tip_ff: FilamentModel) -> None:
     tr = trajectory(tip_ff, U0, p, 0.01, steps=10, out_every=4)
     assert np.allclose(tr.t, [0.0, 0.004, 0.008, 0.01])
     assert np.allclose(tr.states[-1], a, atol=1e-13)
+
+
+def test_negative_period_is_a_domain_error() -> None:
+    """A trial period below zero (a Newton step overshooting, issue 12's
+    standing-wave switch) is a DomainError, which the continuation and the
+    hookstep treat as a failed trial step, not a crash."""
+    from contfil.errors import DomainError
+    from contfil.models.filament.integrators.bdf2 import _n_steps
+
+    with pytest.raises(DomainError, match="T must be a finite non-negative"):
+        _n_steps(-1e-3, 400, None)
+    with pytest.raises(DomainError):
+        _n_steps(float("nan"), 400, None)
+    assert _n_steps(0.1, 400, None) == 400

@@ -83,7 +83,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.errors import NonFiniteError
+from contfil.errors import DomainError, NonFiniteError
 
 from ..kernels.geometry import frames_from_state, state_from_frames, tangents
 from ..physics import FilamentPhysics, embed_planar, frame_observables, project_planar
@@ -96,7 +96,7 @@ Array = NDArray[np.float64]
 
 def _n_steps(T: float, steps: int | None, dt: float | None) -> int:
     if not np.isfinite(T) or T < 0:
-        raise ValueError(f"flow: T must be a finite non-negative number, got {T!r}")
+        raise DomainError(f"flow: T must be a finite non-negative number, got {T!r}")
     if steps is not None:
         if int(steps) < 1:
             raise ValueError(f"flow: steps must be >= 1, got {steps!r}")
