@@ -1,0 +1,179 @@
+"""Events that end a branch of cycles: a symmetry-broken orbit re-entering
+its invariant subspace (:class:`SubspaceReentryEvent`), a relative periodic
+orbit collapsing onto a rotating wave (:class:`RotatingWaveCollapseEvent`)."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from contfil.engine.branch import (
+    CYCLE_BRANCH_POINT,
+    HOPF,
+)
+from contfil.engine.events.standard import Event, EventContext
+from contfil.errors import SpecError
+
+Array = NDArray[np.float64]
+
+
+class SubspaceReentryEvent(Event):
+    """End of a symmetry-broken branch: the orbit re-enters an invariant subspace.
+
+    A branch born at a symmetry-breaking pitchfork (solved in the full
+    model) often merges back into its parent at a second pitchfork: its
+    out-of-subspace part ``w = (I - P) U`` (``U`` the state at the phase
+    origin, ``P = embed ∘ project``) goes to zero there and changes sign as
+    pseudo-arclength carries on onto the mirror half. Test function
+    ``<ŵ_prev, w>`` (``ŵ_prev`` = ``w/|w|`` at the last accepted point),
+    localised by the driver to ``w = 0``; a zero with ``|w| > accept_tol |U|``
+    there (``w`` turned rather than vanished) is rejected.
+
+    The special point (kind ``SUBSPACE_REENTRY``) carries ``terminal``
+    (``True``: the driver ends the branch there, stop reason
+    ``"branch_end"``), ``subspace``, ``u_subspace`` (the reduced state, to
+    match the parent's pitchfork), ``period``, ``deviation`` (``|w|/|U|``)
+    and ``joins = "cycle_branch_point"``: the explorer joins it to the
+    parent's second pitchfork (same ``p``, same reduced orbit).
+
+    Parameters
+    ----------
+    subspace:
+        Name of the invariant subspace of ``problem.model``.
+    terminal:
+        End the run at the special point (default) or only report it.
+    accept_tol:
+        Largest relative out-of-subspace part at the localised point.
+    """
+
+    name = "subspace_reentry"
+    kind = "subspace_reentry"
+
+    def __init__(self, subspace: str, terminal: bool = True, accept_tol: float = 1e-6) -> None:
+        self.subspace = str(subspace)
+        self.terminal = bool(terminal)
+        self.accept_tol = float(accept_tol)
+        self._ref: Array | None = None
+        self._problem_id: int | None = None
+
+    def _w(self, ctx: EventContext) -> tuple[Array, Array, Any]:
+        model = ctx.problem.model  # type: ignore[attr-defined]
+        sub = model.symmetries.invariant_subspaces.get(self.subspace)
+        if sub is None:
+            raise SpecError(f"SubspaceReentryEvent: model {model.name!r} has no invariant "
+                            f"subspace {self.subspace!r}")
+        U = np.asarray(ctx.problem.state(ctx.x), dtype=float)
+        return U - np.asarray(sub.embed(sub.project(U)), dtype=float), U, sub
+
+    def values(self, ctx: EventContext) -> Array:
+        w, _, _ = self._w(ctx)
+        if self._ref is None or self._problem_id != id(ctx.problem) or self._ref.size != w.size:
+            return np.array([float(np.linalg.norm(w))])
+        return np.array([float(self._ref @ w)])
+
+    def accepted(self, ctx: EventContext, values: Array) -> Array:
+        w, _, _ = self._w(ctx)
+        nw = float(np.linalg.norm(w))
+        if nw > 0.0:
+            self._ref = w / nw
+            self._problem_id = id(ctx.problem)
+        return np.array([nw])
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        w, U, sub = self._w(ctx)
+        dev = float(np.linalg.norm(w) / max(np.linalg.norm(U), 1e-300))
+        if dev > self.accept_tol:
+            return None
+        data: dict[str, Any] = {
+            "terminal": self.terminal, "subspace": self.subspace, "deviation": dev,
+            "u_subspace": np.asarray(sub.project(U), dtype=float), "joins": CYCLE_BRANCH_POINT,
+            "switchable": False, "test_value": float(self.values(ctx)[0]),
+        }
+        data.update(ctx.problem.extra(ctx.x))
+        return self.kind, data
+
+
+def _comoving_speed(ctx: EventContext) -> tuple[float, float]:
+    """``(|f⊥(U)| / |L U|, ω)``: the part of ``f(U)`` off the symmetry
+    directions ``L_j U`` (zero exactly on a rotating wave, where
+    ``f = ω L U``) relative to ``|L U|``, and ``ω = <L U, f> / |L U|²``."""
+    pb = ctx.problem
+    model = pb.model  # type: ignore[attr-defined]
+    U = np.asarray(pb.state(ctx.x), dtype=float)
+    f = np.asarray(model.rhs(U, pb.params_at(ctx.p)), dtype=float)
+    Ls = [np.asarray(c.tangent(U), dtype=float) for c in model.symmetries.continuous]
+    lu = Ls[0]
+    nl = float(np.linalg.norm(lu))
+    Q, _ = np.linalg.qr(np.column_stack(Ls))
+    fp = f - Q @ (Q.T @ f)
+    return float(np.linalg.norm(fp)) / nl, float(lu @ f) / nl**2
+
+
+class RotatingWaveCollapseEvent(Event):
+    """End of a relative periodic orbit collapsing onto a rotating wave.
+
+    In the frame co-moving with the symmetry an RPO is a periodic orbit; as
+    it shrinks onto a rotating wave (a Hopf point of the wave in that frame)
+    its time dependence there vanishes: ``f(U) = ω L U`` on the wave. The
+    measure is ``A = |f⊥(U)| / |L U|``, ``f⊥`` the part of ``f`` off the
+    symmetry directions. The RPO system is singular on the wave (its two
+    phase conditions coincide), so the branch cannot be continued through:
+    the event fires when ``A`` falls below ``end_fraction`` of its largest
+    value on the branch (localised there) and reports the end
+    ``p_end`` by extrapolating ``A² `` linearly in ``p`` from the two
+    accepted points of the step (``A² ∝ p - p_end`` near a Hopf point;
+    exact for a normal form), with ``omega`` (the wave's angular speed),
+    ``amplitude`` (``A``), ``terminal``, ``joins = "hopf"`` (the explorer
+    joins it to the rotating wave's Hopf point).
+    """
+
+    name = "rotating_wave_collapse"
+    kind = "rotating_wave_collapse"
+
+    def __init__(self, end_fraction: float = 0.05, terminal: bool = True) -> None:
+        if not 0.0 < end_fraction < 1.0:
+            raise ValueError(f"RotatingWaveCollapseEvent: end_fraction must be in (0, 1), "
+                             f"got {end_fraction!r}")
+        self.end_fraction = float(end_fraction)
+        self.terminal = bool(terminal)
+        self._amax = 0.0
+        self._problem_id: int | None = None
+
+    def _scale(self, ctx: EventContext, a: float) -> float:
+        if self._problem_id != id(ctx.problem):
+            return a
+        return max(self._amax, a)
+
+    def values(self, ctx: EventContext) -> Array:
+        a, _ = _comoving_speed(ctx)
+        amax = self._scale(ctx, a)
+        return np.array([a / amax - self.end_fraction if amax > 0 else -self.end_fraction])
+
+    def crossed(self, v0: Array, v1: Array) -> list[int]:
+        return [0] if (v0[0] > 0.0 and v1[0] <= 0.0) else []
+
+    def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
+        amax = self._scale(ctx1, max(_comoving_speed(ctx0)[0], _comoving_speed(ctx1)[0]))
+        return lambda ctx: _comoving_speed(ctx)[0] / amax - self.end_fraction
+
+    def accepted(self, ctx: EventContext, values: Array) -> Array:
+        a, _ = _comoving_speed(ctx)
+        if self._problem_id != id(ctx.problem):
+            self._problem_id, self._amax = id(ctx.problem), 0.0
+        self._amax = max(self._amax, a)
+        return np.array([a / self._amax - self.end_fraction if self._amax > 0 else 0.0])
+
+    def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        a, om = _comoving_speed(ctx)
+        a0, a1 = _comoving_speed(ctx0)[0], _comoving_speed(ctx1)[0]
+        d = a1**2 - a0**2
+        p_end = ctx1.p - a1**2 * (ctx1.p - ctx0.p) / d if d != 0.0 else float("nan")
+        data: dict[str, Any] = {
+            "terminal": self.terminal, "amplitude": a, "omega": om, "p_end": float(p_end),
+            "joins": HOPF, "switchable": False, "test_value": a,
+        }
+        data.update(ctx.problem.extra(ctx.x))
+        return self.kind, data
