@@ -2,7 +2,7 @@
 
 For each of the four models, the stored beating orbit at its pitchfork
 (``docs/figures/filament_<model>_beating.json``, planar state + period) is
-run over one period in the plane (BDF2, T/400, planar model); at
+run over one period in the plane (BDF2, at least T/400, planar model); at
 ``n_phase`` phases the loads each segment exerts on the fluid are recovered
 from the model's own velocities: ``[F; T] = M^{-1} ([V; Omega] - [V_sf; 0])``
 with the scene's mobility ``M`` and the squirming velocity ``V_sf`` (this is
@@ -73,9 +73,11 @@ def run_model(name: str, n_phase: int, nx: int) -> dict[str, Any]:
     sp = next(s for s in d["special"] if s["kind"] == "cycle_branch_point")
     x = np.asarray(sp["x"], dtype=float)
     p, T = float(sp["p"]), float(x[-1])
-    steps = 400
+    # at least T/400, and a whole number of steps per phase so that the
+    # phases sample the period uniformly
+    steps = n_phase * -(-400 // n_phase)
     tr = trajectory(planar, x[:-1], np.array([p]), T, steps=steps, out_every=steps // n_phase)
-    states = tr.states[:-1][:n_phase]
+    states = tr.states[:n_phase]
     a, eta = model.scene.a, model.scene.eta
     xs = np.linspace(-1.5, 1.5, nx)
     zs = np.linspace(-0.75, 2.25, nx)
