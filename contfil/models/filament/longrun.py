@@ -26,7 +26,6 @@ The samples feed the generic tools of :mod:`contfil.analysis`:
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -49,7 +48,6 @@ __all__ = [
     "LongRun",
     "step_map",
     "tip_position",
-    "centreline_of",
     "rotation_invariant",
     "classify_run",
     "state_node_data",
@@ -75,11 +73,6 @@ def tip_position(model: Any, u: Array) -> Array:
     t = tangents(frames_from_state(_full(model, u)))
     X = positions(t, model.dL)
     return X[-1] + 0.5 * model.dL * t[-1]
-
-
-def centreline_of(model: Any, u: Array) -> Array:
-    """Base, joints and free end ((N+1), 3) of state ``u`` (the model's ``centreline``)."""
-    return np.asarray(model.centreline(u))
 
 
 def rotation_invariant(model: Any, u: Array) -> Array:
@@ -290,13 +283,3 @@ def classify_run(
     extra["t_end"] = run.t
     return res, state_node_data(res, model, p, extra)
 
-
-def steps_per_period(T: float, per_period: int = 400) -> tuple[float, int]:
-    """``(dt, n)`` for ``n = per_period`` steps of a period ``T`` (the paper's T/400)."""
-    n = int(per_period)
-    return float(T) / n, n
-
-
-def periods_to_steps(n_periods: float, per_period: int = 400) -> int:
-    """Steps of ``n_periods`` periods at ``per_period`` steps each."""
-    return int(math.ceil(n_periods * per_period))
