@@ -50,8 +50,9 @@ from contfil.analysis.angular import (
     local_handedness,
 )
 from contfil.analysis.classify import classify_samples
+from contfil.analysis.lyapunov import largest_lyapunov
 from contfil.models.filament import FilamentModel
-from contfil.models.filament.longrun import LongRun, state_node_data, tip_position
+from contfil.models.filament.longrun import LongRun, state_node_data, step_map, tip_position
 from contfil.models.filament.physics import embed_planar
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -76,6 +77,8 @@ def main() -> None:
     ap.add_argument("--sample-every", type=int, default=10)
     ap.add_argument("--hand-every", type=int, default=2)
     ap.add_argument("--eps", type=float, default=1e-2)
+    ap.add_argument("--lyapunov-maps", type=int, default=0,
+                    help="largest Lyapunov exponent over this many half-period maps")
     a = ap.parse_args()
     t0 = time.perf_counter()
     model = FilamentModel(ROOT / "branches" / "dis_sf.toml")
@@ -130,8 +133,19 @@ def main() -> None:
     tfin = tau_bar[np.isfinite(tau_bar)]
     tthr = 0.25 * float(np.sqrt(np.mean(tfin**2))) if tfin.size else 0.0
     hrev = count_reversals(tau_bar, tthr)
+    lyap = None
+    if a.lyapunov_maps > 0:
+        # two-trajectory finite differences of the half-period map, from the
+        # last state (on the attractor)
+        m_steps = max(1, int(round(0.5 * T_meas / dt)))
+        tl = time.perf_counter()
+        lyap = largest_lyapunov(step_map(model, p, dt, m_steps), states[-1], a.lyapunov_maps,
+                                dt * m_steps, n_blocks=10)
+        print(f"[qp2] Lyapunov {lyap.exponent:+.3f} ± {lyap.error:.3f} per unit time "
+              f"({a.lyapunov_maps} maps of {m_steps} steps, {time.perf_counter() - tl:.0f} s)",
+              flush=True)
     cls = classify_samples(iter(states), dt * a.sample_every, n,
-                           observable=lambda u: tip_position(model, u))
+                           observable=lambda u: tip_position(model, u), lyapunov=lyap)
     node = state_node_data(cls, model, p, {"source": "benchmarks/qp2_coils.py"})
     out_of_plane = float(np.sqrt(np.mean(states[:, 0::3] ** 2)))
     in_plane = float(np.sqrt(np.mean(states[:, 1::3] ** 2)))
@@ -155,7 +169,11 @@ def main() -> None:
                                   for v in tau_bar[:: max(1, per // 4)]],
         "mixed_handedness_fraction": float(np.mean([(h > 0).any() and (h < 0).any()
                                                     for h in H])) if H.size else None,
-        "classification": node, "wall_transient_s": t_tr, "wall_run_s": t_run,
+        "classification": node,
+        "lyapunov": None if lyap is None else {
+            "exponent": lyap.exponent, "error": lyap.error, "maps": a.lyapunov_maps,
+            "per_period": lyap.exponent * T_meas, "tail_spread": lyap.tail_spread},
+        "wall_transient_s": t_tr, "wall_run_s": t_run,
     }
     try:
         import matplotlib
