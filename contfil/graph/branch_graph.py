@@ -17,6 +17,18 @@ A **bipartite directed graph** (``networkx.DiGraph``) with two node types:
   switched at yet: it stays a node, marked ``switchable=False``, for later
   quasiperiodic tools).
 
+A third node type records states that are not continued branches:
+
+- *state nodes* (``type="state"``, ids ``A0, A1, ...``): an attractor
+  classified by a long-time simulation (:mod:`contfil.analysis.classify`,
+  driven for the filament by :func:`contfil.models.filament.longrun.classify_run`),
+  with its ``kind`` (one of :data:`STATE_KINDS`), the parameter and its
+  value, a label (``QP1``, ``CH1``, ...) and the JSON-safe ``evidence``
+  (spectral bases, section counts, Lyapunov exponent, ...). An edge
+  ``branch/special -> state`` (``role="state"``) names where it came from:
+  the bifurcation it was born at, or the branch (and point ``index``) whose
+  state started the simulation.
+
 Edges say how they meet: ``branch -> special`` (``role="on"``, with the
 point ``index`` on the branch) when the bifurcation was detected on the
 branch; ``special -> branch`` (``role="born"``) when the branch was started
@@ -71,6 +83,7 @@ from contfil.engine.branch import (
     Branch,
     Point,
     SpecialPoint,
+    decode,
     encode,
 )
 from contfil.errors import ContfilError
@@ -88,6 +101,16 @@ SP_LABELS = {
     PERIOD_DOUBLING: "PD",
     TORUS: "NS",
     ENDPOINT: "EP",
+}
+
+#: Kinds of a classified-attractor ("state") node and their labels.
+STATE_KINDS = {
+    "fixed_point": "FP",
+    "rotating_wave": "RW",
+    "periodic": "PO",
+    "quasiperiodic": "QP",
+    "chaotic": "CH",
+    "edge": "ED",
 }
 
 # Kinds no switching method exists for (yet): kept as dead-end nodes.
@@ -159,6 +182,7 @@ class BranchGraph:
         self.g = nx.DiGraph()
         self._branches: dict[str, Branch] = {}
         self._sps: dict[str, SpecialPoint] = {}
+        self._states: dict[str, dict[str, Any]] = {}
         self._label_count: dict[str, int] = {}
 
     # ----------------------------------------------------------------- access
@@ -171,6 +195,19 @@ class BranchGraph:
     def special_points(self) -> dict[str, SpecialPoint]:
         """Special-point id -> :class:`SpecialPoint` (insertion order)."""
         return dict(self._sps)
+
+    @property
+    def states(self) -> dict[str, dict[str, Any]]:
+        """State-node id -> its data (``kind``, ``label``, ``param``, ``p``, ``evidence``)."""
+        return {k: dict(v) for k, v in self._states.items()}
+
+    def state(self, ref: str) -> dict[str, Any]:
+        """The classified state with id (``A0``) or label (``QP1``) ``ref``."""
+        for aid, d in self._states.items():
+            if ref in (aid, d["label"]):
+                return dict(d)
+        known = [f"{a} ({d['label']})" for a, d in self._states.items()]
+        raise ContfilError(f"no state {ref!r}; known: {known}")
 
     def branch(self, bid: str) -> Branch:
         """The branch with id ``bid``."""
@@ -293,6 +330,61 @@ class BranchGraph:
         else:
             self.g.add_edge(sid, bid, role="born", routes=1)
 
+    def add_state(
+        self, kind: str, param: str, p: float, evidence: dict[str, Any] | None = None,
+        *, born_from: str | None = None, index: int | None = None,
+    ) -> str:
+        """Add a classified attractor (a "state" node) and return its id (``A0``, ...).
+
+        Parameters
+        ----------
+        kind:
+            One of :data:`STATE_KINDS` (the classifier's labels, and ``"edge"``
+            for an edge state found by bisection).
+        param, p:
+            Continuation parameter and its value.
+        evidence:
+            JSON-safe data behind the label (frequencies, Lyapunov exponent,
+            section counts, run settings).
+        born_from:
+            Branch id, or special-point id or label, the state came from.
+        index:
+            Point index on ``born_from`` when it is a branch.
+        """
+        if kind not in STATE_KINDS:
+            raise ContfilError(f"add_state: kind {kind!r} is not one of {sorted(STATE_KINDS)}")
+        pv = float(p)
+        if not np.isfinite(pv):
+            raise ContfilError(f"add_state: parameter value {p!r} is not finite")
+        src = None
+        if born_from is not None:
+            if born_from in self._branches:
+                src = born_from
+            else:
+                src = self.special_id(born_from)  # raises naming the known ones
+        aid = f"A{len(self._states)}"
+        base = STATE_KINDS[kind]
+        self._label_count[base] = self._label_count.get(base, 0) + 1
+        label = f"{base}{self._label_count[base]}"
+        data = {"kind": kind, "label": label, "param": str(param), "p": pv,
+                "evidence": decode(encode(dict(evidence or {})))}
+        self._states[aid] = data
+        self.g.add_node(aid, type="state", kind=kind, label=label, param=str(param), p=pv)
+        if src is not None:
+            attrs: dict[str, Any] = {"role": "state"}
+            if index is not None and src in self._branches:
+                attrs["index"] = int(index)
+            self.g.add_edge(src, aid, **attrs)
+        return aid
+
+    def state_ids(self) -> list[str]:
+        return list(self._states)
+
+    def states_from(self, ref: str) -> list[str]:
+        """State nodes that came from branch or special point ``ref``."""
+        src = ref if ref in self._branches else self.special_id(ref)
+        return [v for _, v, d in self.g.out_edges(src, data=True) if d.get("role") == "state"]
+
     def mark_switched(self, sid: str) -> None:
         """Remember that the explorer has already switched at ``sid``."""
         self.g.nodes[sid]["switched"] = True
@@ -315,7 +407,8 @@ class BranchGraph:
         on or born there)."""
         sid = self.special_id(sid)
         on = [b for b, _ in self.g.in_edges(sid)]
-        born = [b for _, b in self.g.out_edges(sid)]
+        # state nodes hang off special points too; they are not branches
+        born = [b for _, b in self.g.out_edges(sid) if b in self._branches]
         return list(dict.fromkeys(on + born))
 
     def connected(self, bid: str) -> list[tuple[str, str]]:
@@ -361,7 +454,7 @@ class BranchGraph:
             )
             for sid in self.special_points_on(bid):
                 s = self.g.nodes[sid]
-                born = [b for _, b in self.g.out_edges(sid)]
+                born = [b for _, b in self.g.out_edges(sid) if b in self._branches]
                 lines.append(
                     f"    {s['label']:<5} {s['kind']:<18} {br.param}={s['p']:.8g}"
                     + ("" if s["switchable"] else "  (not switchable)")
@@ -371,6 +464,10 @@ class BranchGraph:
                     + (f"  [not followed: {', '.join(sp.data['not_followed'])}]"
                        if sp.data.get("not_followed") else "")
                 )
+        for aid, d in self._states.items():
+            src = [u for u, _ in self.g.in_edges(aid)]
+            lines.append(f"{aid} {d['label']:<5} {d['kind']:<16} {d['param']}={d['p']:.8g}"
+                         + (f"  from {', '.join(src)}" if src else ""))
         return "\n".join(lines)
 
     # --------------------------------------------------------------- export
@@ -392,6 +489,8 @@ class BranchGraph:
                 br = self._branches[n]
                 a["data"] = br.to_dict()
                 a["stability"] = stability_runs(br)
+            elif a["type"] == "state":
+                a["data"] = {"evidence": self._states[n]["evidence"]}
             else:
                 a["data"] = self._sps[n].to_dict()
             G.add_node(n, **_json_safe(a))
@@ -426,6 +525,13 @@ class BranchGraph:
                 bg.g.add_node(n, **attrs)
             elif a.get("type") == "special":
                 bg._sps[n] = SpecialPoint.from_dict(a["data"])
+                bg.g.add_node(n, **{k: v for k, v in a.items() if k != "data"})
+                base = "".join(c for c in a["label"] if not c.isdigit())
+                bg._label_count[base] = bg._label_count.get(base, 0) + 1
+            elif a.get("type") == "state":
+                ev = decode((a.get("data") or {}).get("evidence", {}))
+                bg._states[n] = {"kind": a["kind"], "label": a["label"], "param": a["param"],
+                                 "p": float(a["p"]), "evidence": ev}
                 bg.g.add_node(n, **{k: v for k, v in a.items() if k != "data"})
                 base = "".join(c for c in a["label"] if not c.isdigit())
                 bg._label_count[base] = bg._label_count.get(base, 0) + 1
