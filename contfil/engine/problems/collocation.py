@@ -49,11 +49,23 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from contfil.engine.branch import PERIODIC_ORBIT
-from contfil.engine.events.cycles import CycleBranchPointEvent, cycle_events
+from contfil.engine.events.cycles import (
+    CycleBranchPointEvent,
+    PeriodDoublingEvent,
+    StabilityChangeEvent,
+    TorusEvent,
+    cycle_events,
+)
 from contfil.engine.linalg.small_blocks import batched_lu, batched_lu_solve, condense_intervals
 from contfil.engine.problems.base import Problem, Stability, resolve_params
 from contfil.engine.problems.collocation_checks import check_orbit, orbit_stability, verify_orbit
-from contfil.engine.problems.collocation_events import CollocationBranchPointEvent, MeshTracker
+from contfil.engine.problems.collocation_events import (
+    CollocationBranchPointEvent,
+    CollocationPeriodDoublingEvent,
+    CollocationStabilityChangeEvent,
+    CollocationTorusEvent,
+    MeshTracker,
+)
 from contfil.engine.problems.collocation_mesh import (
     GaussTable,
     VectorField,
@@ -441,8 +453,15 @@ class CollocationProblem(Problem):
         return out
 
     def default_events(self) -> list:
-        """Fold, branch point, period doubling and torus of cycles."""
-        evs = [CollocationBranchPointEvent() if type(e) is CycleBranchPointEvent else e
+        """Fold, branch point, period doubling and torus of cycles, the
+        unstable-count safety net (the multiplier counts compared only where
+        the multipliers are trusted, see :mod:`.collocation_events`) and the
+        mesh tracker."""
+        swap = {CycleBranchPointEvent: CollocationBranchPointEvent,
+                StabilityChangeEvent: CollocationStabilityChangeEvent,
+                PeriodDoublingEvent: CollocationPeriodDoublingEvent,
+                TorusEvent: CollocationTorusEvent}
+        evs = [swap[type(e)]() if type(e) in swap else e
                for e in cycle_events(subspace=self.subspace is not None)]
         return [*evs, MeshTracker()]
 
