@@ -4,8 +4,9 @@ Set-up: AUTO-07p is built from its public source in a temporary directory
 outside the repository (``./configure && make`` with gfortran); nothing of
 AUTO is stored in contfil. The source is taken from ``--auto-src`` (a source
 tree, or a git directory, e.g. a mirror of github.com/auto-07p/auto-07p),
-else ``$AUTO07P_SRC``, else cloned from GitHub. Without gfortran (or without
-the source) the AUTO half is skipped and the output says so.
+else ``$AUTO07P_SRC``, else cloned from GitHub; a tree already built (with
+``lib/*.o``) is used as it is. Without gfortran (or without the source) the
+AUTO half is skipped and the output says so.
 
 Problems (AUTO's demo files, read from the source; the same NTST/NCOL):
 
@@ -86,6 +87,8 @@ def build_auto(src: str | None, work: Path) -> tuple[Path | None, str]:
         return None, "no Fortran compiler (gfortran) on PATH: AUTO-07p skipped"
     tree = work / "auto-07p"
     src = src or os.environ.get("AUTO07P_SRC")
+    if src and list(Path(src, "lib").glob("*.o")) and Path(src, "demos").is_dir():
+        return Path(src), "already built (--auto-src is a built tree)"
     try:
         if src and not Path(src, "HEAD").exists() and Path(src, "repo", "HEAD").exists():
             src = str(Path(src, "repo"))  # a mirror directory holding the bare git dir

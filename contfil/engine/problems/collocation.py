@@ -607,8 +607,17 @@ class CollocationProblem(Problem):
 
     def mesh_balance(self, x: Array, p: float) -> float:
         """``max E_j / mean E_j`` of the equidistribution monitor (1 is perfect)."""
-        E, _ = mesh_monitor(self.table, self.h, self._solve(x, p)["K"], float(x[-1]))
+        E, _ = self.monitor(x, p)
         return float(np.max(E) / np.mean(E)) if np.mean(E) > 0 else 1.0
+
+    def monitor(self, x: Array, p: float) -> tuple[Array, Array]:
+        """:func:`.collocation_mesh.mesh_monitor` of the orbit ``x`` (kept with
+        its stage solution: the stability check and the remesh test both
+        need it)."""
+        s = self._solve(np.asarray(x, dtype=float), p)
+        if "monitor" not in s:
+            s["monitor"] = mesh_monitor(self.table, self.h, s["K"], float(s["T"]))
+        return s["monitor"]
 
     def remesh(self, x: Array, p: float, force: bool = False,
                tangent: Array | None = None) -> Array | None:
@@ -623,7 +632,7 @@ class CollocationProblem(Problem):
         """
         x = np.array(x, dtype=float)
         s = self._solve(x, p)
-        E, _ = mesh_monitor(self.table, self.h, s["K"], float(x[-1]))
+        E, _ = self.monitor(x, p)
         mean = float(np.mean(E))
         if mean == 0.0 or not np.all(np.isfinite(E)):
             return None
