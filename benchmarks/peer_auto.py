@@ -17,7 +17,11 @@ Problems (AUTO's demo files, read from the source; the same NTST/NCOL):
 - ``tor``: the Freire circuit (ε = 0): cycles from the Hopf point (NTST 25,
   NCOL 4, analytic Jacobian), AUTO's 125 points; then the branch switched at
   the first branch point (AUTO's third run, 90 points). contfil runs over the
-  same period range.
+  same period range. AUTO's second run leaves the symmetric cycles at the
+  pitchfork next to the fold at T = 39.37 (its last fold is on the asymmetric
+  branch); contfil stays on the symmetric branch and reports that pitchfork,
+  so its run 2 is the symmetric branch plus the branch switched there
+  ("tor2b"), timed and matched together.
 
 Both programs run interleaved, ``--repeat`` times (the fastest run of each
 counts); contfil after one warm-up run (numba compilation is cached on disk,
