@@ -4,8 +4,9 @@ Set-up: AUTO-07p is built from its public source in a temporary directory
 outside the repository (``./configure && make`` with gfortran); nothing of
 AUTO is stored in contfil. The source is taken from ``--auto-src`` (a source
 tree, or a git directory, e.g. a mirror of github.com/auto-07p/auto-07p),
-else ``$AUTO07P_SRC``, else cloned from GitHub. Without gfortran (or without
-the source) the AUTO half is skipped and the output says so.
+else ``$AUTO07P_SRC``, else cloned from GitHub; a tree already built (with
+``lib/*.o``) is used as it is. Without gfortran (or without the source) the
+AUTO half is skipped and the output says so.
 
 Problems (AUTO's demo files, read from the source; the same NTST/NCOL):
 
@@ -16,7 +17,11 @@ Problems (AUTO's demo files, read from the source; the same NTST/NCOL):
 - ``tor``: the Freire circuit (ε = 0): cycles from the Hopf point (NTST 25,
   NCOL 4, analytic Jacobian), AUTO's 125 points; then the branch switched at
   the first branch point (AUTO's third run, 90 points). contfil runs over the
-  same period range.
+  same period range. AUTO's second run leaves the symmetric cycles at the
+  pitchfork next to the fold at T = 39.37 (its last fold is on the asymmetric
+  branch); contfil stays on the symmetric branch and reports that pitchfork,
+  so its run 2 is the symmetric branch plus the branch switched there
+  ("tor2b"), timed and matched together.
 
 Both programs run interleaved, ``--repeat`` times (the fastest run of each
 counts); contfil after one warm-up run (numba compilation is cached on disk,
@@ -86,7 +91,11 @@ def build_auto(src: str | None, work: Path) -> tuple[Path | None, str]:
         return None, "no Fortran compiler (gfortran) on PATH: AUTO-07p skipped"
     tree = work / "auto-07p"
     src = src or os.environ.get("AUTO07P_SRC")
+    if src and list(Path(src, "lib").glob("*.o")) and Path(src, "demos").is_dir():
+        return Path(src), "already built (--auto-src is a built tree)"
     try:
+        if src and not Path(src, "HEAD").exists() and Path(src, "repo", "HEAD").exists():
+            src = str(Path(src, "repo"))  # a mirror directory holding the bare git dir
         if src and Path(src, "HEAD").exists() and not Path(src, "src").exists():
             tree.mkdir(parents=True)
             _sh(f"git --git-dir={src} archive HEAD | tar -x -C {tree}", work)
@@ -257,20 +266,36 @@ def freire_vectorised() -> FunctionModel:
     return m
 
 
-def contfil_tor(T_end2: float, T_end3: float) -> tuple[dict, dict]:
+NO_RUN = {"wall": 0.0, "cpu": 0.0, "points": 0, "special": [], "error": "no branch point",
+          "T_end": float("nan"), "p_end": float("nan")}
+# AUTO's run 2 leaves the symmetric cycles (u(t + T/2) = -u(t)) at the fold
+# near T = 39.37: a pitchfork of cycles lies 2e-8 in ν from it, and AUTO's
+# points from there on are asymmetric (its LP at ν = -0.796906 belongs to the
+# bifurcating branch). contfil stays on the symmetric branch and reports that
+# pitchfork; run "tor2b" switches there to cover AUTO's last stretch.
+T_JUMP_TOR2 = 39.0
+
+
+def contfil_tor(T_end2: float, T_end3: float) -> tuple[dict, dict, dict]:
     m = freire_vectorised()
     hopf = _hopf(m, "nu", m.initial_state(None), -0.9, -0.55, 0.05)
     start = cycles_from_hopf(m, "nu", hopf, eps=0.01, ntst=25, ncol=4)
     s = ContinuationSettings(ds=0.005, ds_max=0.02, max_points=1000, p_min=-0.9, p_max=-0.4,
                              event_tol=EVENT_TOL)
     r2, br = _follow(start, s, T_end2, 1)
-    bp = next((sp for sp in br.special_points if sp.kind == "cycle_branch_point"), None)
-    if bp is None:
-        return r2, {"wall": 0.0, "cpu": 0.0, "points": 0, "special": [],
-                    "error": "no branch point", "T_end": float("nan"), "p_end": float("nan")}
-    new = cycles_from_branch_point(start.problem, bp, eps=0.01, side=1)
+    bps = [sp for sp in br.special_points if sp.kind == "cycle_branch_point"]
+    if not bps:
+        return r2, dict(NO_RUN), dict(NO_RUN)
+    late = [sp for sp in bps if sp.point.extra["period"] > T_JUMP_TOR2]
+    r2b = dict(NO_RUN, error="no branch point past T = 39")
+    if late:
+        side = cycles_from_branch_point(start.problem, late[0], eps=0.01, side=1)
+        r2b, _ = _follow(side, s, T_end2, 1)
+        # the switched branch starts at the pitchfork: its own report of it is not new
+        r2b["special"] = [sp for sp in r2b["special"] if sp[0] != "cycle_branch_point"]
+    new = cycles_from_branch_point(start.problem, bps[0], eps=0.01, side=1)
     r3, _ = _follow(new, s, T_end3, 1)
-    return r2, r3
+    return r2, r2b, r3
 
 
 # ----------------------------------------------------------------------------- report
@@ -326,8 +351,12 @@ def main() -> None:
             keep_best("auto_tor3", r3)
             T_lrz, T_tor2, T_tor3 = ra["T_end"], r2["T_end"], r3["T_end"]
         keep_best("contfil_lrz", contfil_lrz(T_lrz))
-        c2, c3 = contfil_tor(T_tor2, T_tor3)
-        keep_best("contfil_tor2", c2)
+        c2, c2b, c3 = contfil_tor(T_tor2, T_tor3)
+        # run 2 with its switched stretch (AUTO's run 2 covers both): one timing
+        both = {k: c2[k] + c2b[k] for k in ("wall", "cpu", "points")}
+        both.update({"special": c2["special"] + c2b["special"], "error": c2["error"],
+                     "T_end": c2["T_end"], "p_end": c2["p_end"], "parts": (c2, c2b)})
+        keep_best("contfil_tor2", both)
         keep_best("contfil_tor3", c3)
 
     def per_point(r: dict, key: str = "cpu") -> float:
@@ -345,6 +374,10 @@ def main() -> None:
         summary[f"contfil_ms_per_point_{name}"] = round(1e3 * c_time / c_pts, 3)
         for p in parts:
             r = best[f"contfil_{p}"]
+            for sub, lab in zip(r.get("parts", ()), ("symmetric branch", "switched at the "
+                                                     "pitchfork near T = 39.37"), strict=False):
+                print(f"   {p} {lab}: {sub['points']} points, {sub['cpu']:.3f} s CPU; "
+                      f"special: {_fmt_special(sub['special'])}")
             print(f"contfil {p}: {r['points']} points, {r['cpu']:.3f} s CPU, {r['wall']:.3f} s "
                   f"wall ({1e3 * per_point(r):.2f} ms/point), T_end {r['T_end']:.4g} at "
                   f"{r['p_end']:.7g}" + (f", stopped: {r['error']}" if r["error"] else ""))

@@ -285,6 +285,11 @@ def test_lorenz_branch_towards_the_homoclinic_orbit_is_a_true_orbit():
     # the origin takes the long intervals
     h_phys = np.diff(pb.tau) * pt.extra["period"]
     assert h_phys.max() > 20 * h_phys.min()
+    # no special points (AUTO reports none either): past T ≈ 8 the multipliers
+    # exceed the floating-point range and the multiplier-counting events must
+    # not compare them
+    assert [q.extra["trivial_distance"] for q in run.branch.points][-1] > 1e-2
+    assert [sp.kind for sp in run.branch.special_points if sp.kind != "endpoint"] == []
 
 
 def test_lorenz_branch_reaches_period_500():
@@ -418,3 +423,51 @@ def test_adapt_mesh_equidistributes():
     # the new mesh puts ~ half its points into [0.3, 0.4]
     inside = np.sum((new > 0.3) & (new < 0.4))
     assert inside >= 4
+
+
+
+class _Ctx:
+    """The few fields of an event context the collocation event wrappers read."""
+
+    def __init__(self, X, trivial_distance=0.0, multipliers=(1.0, -1.5, 0.2)):
+        from contfil.engine.problems.base import Stability
+
+        self.X = np.asarray(X, dtype=float)
+        self.tangent = np.ones_like(self.X)
+        self.weights = np.full(self.X.size, 1.0 / self.X.size)
+        mu = np.asarray(multipliers, dtype=complex)
+        self.stability = Stability(values=mu, kind="multipliers",
+                                   trivial=np.arange(mu.size) == 0,
+                                   info={"trivial_distance": trivial_distance})
+
+
+def test_branch_point_localiser_stops_at_its_resolution():
+    # a test function that flips sign between trials closer than 1e-5 of the
+    # step is resolved: the wrapper answers 0 ("converged"); farther apart,
+    # or of the same sign, the value passes through unchanged
+    from contfil.engine.problems.collocation_events import _stop_at_resolution
+
+    ctx0, ctx1 = _Ctx([0.0, 0.0]), _Ctx([1.0, 1.0])  # step 1 in the hyperplane coordinate
+    values = iter([0.5, -0.25, -0.125, 0.0625])
+    h = _stop_at_resolution(lambda ctx: next(values), ctx0, ctx1, 1e-5)
+    assert h(_Ctx([0.5, 0.5])) == 0.5
+    assert h(_Ctx([0.6, 0.6])) == -0.25              # opposite sign, 0.1 away
+    assert h(_Ctx([0.6 + 1e-7, 0.6])) == -0.125      # 5e-8 away, same sign
+    assert h(_Ctx([0.6 + 1e-7, 0.6 + 1e-7])) == 0.0  # opposite sign, 1e-7 away
+
+
+def test_multiplier_counts_compared_only_where_trusted():
+    from contfil.engine.problems.collocation_events import (
+        TRUSTED_MULTIPLIERS,
+        CollocationPeriodDoublingEvent,
+    )
+
+    ev = CollocationPeriodDoublingEvent()
+    near = _Ctx([0.0], trivial_distance=0.1 * TRUSTED_MULTIPLIERS)
+    far = _Ctx([0.0], trivial_distance=10 * TRUSTED_MULTIPLIERS)
+    # -1.5 is the one real negative multiplier outside the circle
+    np.testing.assert_array_equal(ev.values(near), [1.0, 1.0])
+    assert np.all(np.isnan(ev.values(far)))
+    assert ev.crossed(np.array([0.0, 0.0]), ev.values(near)) == [0]
+    assert ev.crossed(np.array([0.0, 0.0]), ev.values(far)) == []
+    assert ev.crossed(ev.values(far), np.array([0.0, 0.0])) == []

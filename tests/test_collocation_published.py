@@ -211,3 +211,52 @@ def test_freire_long_period_folds_and_branch_point_at_auto_reference_values():
                                                    (-0.787590, 29.3732)), strict=True):
         assert nu == pytest.approx(nu_a, abs=1e-6), kind
         assert T == pytest.approx(T_a, abs=1e-3), kind
+
+
+def _half_period_asymmetry(pb: CollocationProblem, x: np.ndarray, p: float) -> float:
+    # the circuit is odd (f(-u) = -f(u)); a symmetric cycle has u(τ + 1/2) = -u(τ)
+    t = np.linspace(0.0, 1.0, 200, endpoint=False)
+    u, _ = pb.evaluate(x, p, t)
+    v, _ = pb.evaluate(x, p, t + 0.5)
+    return float(np.max(np.abs(u + v)) / np.max(np.abs(u)))
+
+
+def test_freire_pitchfork_at_the_long_period_fold_and_auto_s_branch_beyond_it():
+    # AUTO's second run of demo tor (NTST 25) prints LP -0.799899 (T 39.37)
+    # and then LP -0.796906 (T 42.288). Its orbits up to the first are
+    # symmetric, from there on asymmetric: a pitchfork of cycles lies at the
+    # fold (2e-8 apart in ν) and AUTO's corrector leaves the symmetric branch
+    # there. contfil stays on the symmetric branch, reports the fold and the
+    # pitchfork; switching at the pitchfork reaches AUTO's second fold.
+    m = freire_circuit(eps=0.0, **FREIRE_AUTO_DEMO)
+    eq = Continuation(EquilibriumProblem(m, "nu"), m.initial_state(None), -0.9,
+                      ContinuationSettings(ds=0.05, max_points=30, p_max=-0.55)).run()
+    hopf = next(sp for sp in eq.special_points if sp.kind == HOPF)
+    start = cycles_from_hopf(m, "nu", hopf, eps=0.01, ntst=25)
+    settings = ContinuationSettings(ds=0.005, ds_max=0.02, max_points=400, p_min=-0.9,
+                                    p_max=-0.4, event_tol=1e-10)
+    run = start.continuation(settings)
+    for pt in run:
+        if pt.extra["period"] > 40.0:
+            break
+    pb = start.problem
+    late = [sp for sp in _events(run.branch) if sp.point.extra["period"] > 35.0]
+    assert [sp.kind for sp in late] == [CYCLE_FOLD, CYCLE_BRANCH_POINT]
+    fold, bp = late
+    assert fold.point.p == pytest.approx(-0.799899, abs=1e-6)
+    assert fold.point.extra["period"] == pytest.approx(39.3706, abs=1e-2)
+    assert bp.point.p == pytest.approx(fold.point.p, abs=1e-6)
+    # the branch beyond the pitchfork is still the symmetric one
+    x, p = pb.orbit_at(run.branch.points[-1].u)
+    assert _half_period_asymmetry(pb, x, p) < 1e-2
+    side = cycles_from_branch_point(pb, bp, eps=0.01, side=1)
+    run2 = side.continuation(settings)
+    for pt in run2:
+        if pt.extra["period"] > 42.5:
+            break
+    folds = [sp for sp in _events(run2.branch) if sp.kind == CYCLE_FOLD]
+    assert len(folds) == 1
+    assert folds[0].point.p == pytest.approx(-0.796906, abs=2e-6)
+    assert folds[0].point.extra["period"] == pytest.approx(42.2879, abs=5e-3)
+    x, p = side.problem.orbit_at(run2.branch.points[-1].u)
+    assert _half_period_asymmetry(side.problem, x, p) > 0.3

@@ -49,11 +49,23 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from contfil.engine.branch import PERIODIC_ORBIT
-from contfil.engine.events.cycles import CycleBranchPointEvent, cycle_events
+from contfil.engine.events.cycles import (
+    CycleBranchPointEvent,
+    PeriodDoublingEvent,
+    StabilityChangeEvent,
+    TorusEvent,
+    cycle_events,
+)
 from contfil.engine.linalg.small_blocks import batched_lu, batched_lu_solve, condense_intervals
 from contfil.engine.problems.base import Problem, Stability, resolve_params
 from contfil.engine.problems.collocation_checks import check_orbit, orbit_stability, verify_orbit
-from contfil.engine.problems.collocation_events import CollocationBranchPointEvent, MeshTracker
+from contfil.engine.problems.collocation_events import (
+    CollocationBranchPointEvent,
+    CollocationPeriodDoublingEvent,
+    CollocationStabilityChangeEvent,
+    CollocationTorusEvent,
+    MeshTracker,
+)
 from contfil.engine.problems.collocation_mesh import (
     GaussTable,
     VectorField,
@@ -441,8 +453,15 @@ class CollocationProblem(Problem):
         return out
 
     def default_events(self) -> list:
-        """Fold, branch point, period doubling and torus of cycles."""
-        evs = [CollocationBranchPointEvent() if type(e) is CycleBranchPointEvent else e
+        """Fold, branch point, period doubling and torus of cycles, the
+        unstable-count safety net (the multiplier counts compared only where
+        the multipliers are trusted, see :mod:`.collocation_events`) and the
+        mesh tracker."""
+        swap = {CycleBranchPointEvent: CollocationBranchPointEvent,
+                StabilityChangeEvent: CollocationStabilityChangeEvent,
+                PeriodDoublingEvent: CollocationPeriodDoublingEvent,
+                TorusEvent: CollocationTorusEvent}
+        evs = [swap[type(e)]() if type(e) in swap else e
                for e in cycle_events(subspace=self.subspace is not None)]
         return [*evs, MeshTracker()]
 
@@ -588,8 +607,17 @@ class CollocationProblem(Problem):
 
     def mesh_balance(self, x: Array, p: float) -> float:
         """``max E_j / mean E_j`` of the equidistribution monitor (1 is perfect)."""
-        E, _ = mesh_monitor(self.table, self.h, self._solve(x, p)["K"], float(x[-1]))
+        E, _ = self.monitor(x, p)
         return float(np.max(E) / np.mean(E)) if np.mean(E) > 0 else 1.0
+
+    def monitor(self, x: Array, p: float) -> tuple[Array, Array]:
+        """:func:`.collocation_mesh.mesh_monitor` of the orbit ``x`` (kept with
+        its stage solution: the stability check and the remesh test both
+        need it)."""
+        s = self._solve(np.asarray(x, dtype=float), p)
+        if "monitor" not in s:
+            s["monitor"] = mesh_monitor(self.table, self.h, s["K"], float(s["T"]))
+        return s["monitor"]
 
     def remesh(self, x: Array, p: float, force: bool = False,
                tangent: Array | None = None) -> Array | None:
@@ -604,7 +632,7 @@ class CollocationProblem(Problem):
         """
         x = np.array(x, dtype=float)
         s = self._solve(x, p)
-        E, _ = mesh_monitor(self.table, self.h, s["K"], float(x[-1]))
+        E, _ = self.monitor(x, p)
         mean = float(np.mean(E))
         if mean == 0.0 or not np.all(np.isfinite(E)):
             return None

@@ -16,7 +16,6 @@ from numpy.typing import NDArray
 from contfil.engine.linalg.collocation_floquet import pencil_multipliers
 from contfil.engine.linalg.floquet import flag_trivial
 from contfil.engine.problems.base import Stability
-from contfil.engine.problems.collocation_mesh import mesh_monitor
 from contfil.errors import ConvergenceError
 
 Array = NDArray[np.float64]
@@ -59,8 +58,7 @@ def orbit_stability(self: Any, x: Array, p: float, vectors: bool = True) -> Stab
     mu, trivial = mu[order], trivial[order]
     V = None if V is None else V[:, order]
     T = float(x[-1])
-    s = self._solve(x, p)
-    _, err = mesh_monitor(self.table, self.h, s["K"], T)
+    _, err = self.monitor(x, p)
     # the time-shift mode interval by interval: Φ'_j f(u_j) = f(u_{j+1})
     # for the flow; its defect is linear in the discretisation error, also
     # at a fold, where |μ_trivial - 1| grows like its square root (Jordan
