@@ -370,3 +370,26 @@ def test_show_reports_running_interrupted_finished(finished, tmp_path: Path, cap
         assert main(["show", str(run)]) == 0
         assert "status: running" in capsys.readouterr().out
     assert time.monotonic() - t0 < 30
+
+
+def test_a_signal_after_the_work_is_done_does_not_kill_the_exit(tmp_path: Path) -> None:
+    """Python's finalisation puts handled signals back to 'terminate'; a
+    SIGTERM landing while a finished run exits must not turn exit 0 into a
+    kill (-15). As a program, main() leaves SIGINT/SIGTERM ignored."""
+    import subprocess
+    import sys
+
+    code = ("import signal, sys; sys.argv[0] = '/x/contfil/__main__.py'\n"
+            "from contfil.app import cli\n"
+            f"status = cli.main(['show', {str(tmp_path / 'missing')!r}])\n"
+            "print(status, signal.getsignal(signal.SIGTERM) is signal.SIG_IGN,"
+            " signal.getsignal(signal.SIGINT) is signal.SIG_IGN)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=120)
+    assert out.stdout.split() == ["2", "True", "True"], out.stderr
+    # imported as a library, main() leaves the caller's handlers alone
+    from contfil.app import cli
+
+    before = signal.getsignal(signal.SIGTERM)
+    assert cli.main(["show", str(tmp_path / "missing")]) == 2
+    assert signal.getsignal(signal.SIGTERM) is before

@@ -53,9 +53,10 @@ def _remember_signal(signum: int, frame: object) -> None:
     _EARLY_SIGNALS.append(signum)
 
 
-if (threading.current_thread() is threading.main_thread()
-        and Path(sys.argv[0]).name in ("contfil", "__main__.py")
-        and "contfil" in sys.argv[0]):
+_PROGRAM = (threading.current_thread() is threading.main_thread()
+            and Path(sys.argv[0]).name in ("contfil", "__main__.py")
+            and "contfil" in sys.argv[0])
+if _PROGRAM:
     for _sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(_sig, _remember_signal)
 
@@ -290,6 +291,17 @@ def _interrupt_status(exc: BaseException, stop: StopRequest) -> int | None:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``contfil`` console script; returns the exit status."""
+    status = _main(argv)
+    if _PROGRAM:
+        # The work is done and stored: a signal from now on must not turn the
+        # exit into a kill. Python's finalisation puts handled signals back to
+        # their default (terminate) but leaves ignored ones ignored.
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_IGN)
+    return status
+
+
+def _main(argv: Sequence[str] | None) -> int:
     os.environ.setdefault("MPLBACKEND", "Agg")
     args = _parser().parse_args(argv)
     from contfil.explore.stop import Interrupted, stop_on_signals
