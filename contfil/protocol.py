@@ -103,7 +103,10 @@ FlowTangentFn = Callable[..., FlowTangent]
 
 def flow_tangent_hook(model: Any) -> FlowTangentFn | None:
     """The model's ``flow_tangent`` hook, or ``None`` (the default: no exact
-    tangents). Probe it once per model, never in a loop."""
+    tangents). A model may offer the hook but keep it off with
+    ``exact_tangents = False``. Probe it once per model, never in a loop."""
+    if getattr(model, "exact_tangents", True) is False:
+        return None
     fn = getattr(model, "flow_tangent", None)
     return fn if callable(fn) else None
 

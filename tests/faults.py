@@ -60,6 +60,29 @@ sys.exit(main(argv))
 '''
 
 
+#: Equilibria through a Hopf point onto its cycles: the smallest study with
+#: an equilibrium branch and a cycle branch (seconds); the fault, fuzz and
+#: crash tests all damage or kill runs of it.
+HOPF_SPEC = """
+[model]
+name = "hopf_2d"
+
+[continuation]
+range = [-1.0, 0.6]
+ds = 0.1
+ds_max = 0.2
+max_points = 12
+tol = 1e-11
+
+[explorer]
+depth = 1
+
+[output]
+plots = false
+graphml = false
+"""
+
+
 def contfil_process(args: list[str], fault: str = "none", **kw) -> subprocess.Popen:
     """Start ``contfil ARGS`` in a subprocess with ``fault`` injected."""
     env = dict(os.environ, MPLBACKEND="Agg")

@@ -26,31 +26,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from faults import contfil_module_process, contfil_process
+from faults import HOPF_SPEC, contfil_module_process, contfil_process
 
 from contfil.app.cli import main
 from contfil.graph.branch_graph import BranchGraph
 from contfil.store.atomic import RecordLog
 from contfil.store.run_store import parse_task_records
 
-SPEC = """
-[model]
-name = "hopf_2d"
-
-[continuation]
-range = [-1.0, 0.6]
-ds = 0.1
-ds_max = 0.2
-max_points = 12
-tol = 1e-11
-
-[explorer]
-depth = 1
-
-[output]
-plots = false
-graphml = false
-"""
+SPEC = HOPF_SPEC
 
 TOL = 1e-12
 

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from faults import contfil_process
+from faults import HOPF_SPEC, contfil_process
 
 from contfil.app.cli import _interrupt_status, main
 from contfil.explore.stop import Interrupted, StopRequest
@@ -22,27 +22,6 @@ from contfil.graph.branch_graph import BranchGraph
 from contfil.store.atomic import RecordLog, atomic_write_text, temp_owner
 from contfil.store.lock import RunLock, RunLockedError, is_locked, read_holder
 from contfil.store.run_store import RunStore, parse_task_records, run_state
-
-# Equilibria through a Hopf point onto its cycles (periodic-orbit shooting):
-# the smallest study with both kinds of branch, ~3 s.
-HOPF_SPEC = """
-[model]
-name = "hopf_2d"
-
-[continuation]
-range = [-1.0, 0.6]
-ds = 0.1
-ds_max = 0.2
-max_points = 12
-tol = 1e-11
-
-[explorer]
-depth = 1
-
-[output]
-plots = false
-graphml = false
-"""
 
 
 @pytest.fixture(scope="module")

@@ -135,3 +135,15 @@ def test_forward_difference_option_is_close_to_central() -> None:
     assert 1e-12 < err < 1e-6
     with pytest.raises(ValueError, match="fd must be"):
         flow_tangent(m, u, p, T, steps=STEPS, fd="complex")
+
+
+def test_product_keeps_tangents_off_until_the_floquet_split_is_fixed() -> None:
+    """The plain model offers the hook but keeps it off (the studies' rerun
+    found wrong pitchfork kinds with it); the fixed-step wrapper turns it on,
+    and the engine's flow operations follow the flag."""
+    from contfil.engine.flows.ops import FlowOps
+
+    m = _model("planar", "squirmer", 100.0)
+    assert flow_tangent_hook(m) is None and not FlowOps(m).exact_tangent
+    fm = FixedStepFlow(m, STEPS)
+    assert flow_tangent_hook(fm) is not None and FlowOps(fm).exact_tangent

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from faults import HOPF_SPEC
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -82,24 +83,7 @@ def test_spec_file_random_bytes(tmp_path: Path, data: bytes) -> None:
 
 
 # ------------------------------------------------------------ damaged runs
-SPEC = """
-[model]
-name = "hopf_2d"
-
-[continuation]
-range = [-1.0, 0.6]
-ds = 0.1
-ds_max = 0.2
-max_points = 12
-tol = 1e-11
-
-[explorer]
-depth = 1
-
-[output]
-plots = false
-graphml = false
-"""
+SPEC = HOPF_SPEC
 
 
 @pytest.fixture(scope="module")

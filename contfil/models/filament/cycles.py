@@ -63,6 +63,9 @@ class FixedStepFlow:
     each step's increment columns).
     """
 
+    #: the shooting engine uses the exact tangent sweeps (see FilamentModel)
+    exact_tangents = True
+
     def __init__(
         self, model: FilamentModel, steps: int = STEPS_PER_PERIOD, tangent_fd: str = "central",
         **stepper_kw: Any,
