@@ -15,8 +15,11 @@ fold's multiplier is within 2e-7 of 1, with 25 within 2e-6, outside the
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
-from test_cycles_published import (
-    ALPHA_PD,
+
+# The shooting file's Lur'e tests (test_*) are collected again here: they run
+# on this module's ``lure_branch``, the same branch by collocation, with the
+# same assertions. Hence the noqa: pytest, not this module, uses them.
+from test_cycles_published import (  # noqa: F401
     AUTO_BP_L2,
     AUTO_BP_NU,
     AUTO_BP_T,
@@ -33,9 +36,10 @@ from test_cycles_published import (
     NS_T,
     PD_NU,
     PD_T,
-    PERIOD_NEUTRAL_SADDLE,
-    PERIOD_PD,
     _symmetric_orbit_point,
+    test_liouville_along_branch,
+    test_no_torus_and_neutral_saddle_at_alpha_zero,
+    test_period_doubling_at_published_value,
 )
 
 from contfil.engine.branch import CYCLE_BRANCH_POINT, CYCLE_FOLD, HOPF, PERIOD_DOUBLING, TORUS
@@ -68,28 +72,6 @@ def lure_branch():
     assert start.info["side"] == -1.0
     return start.run(ContinuationSettings(ds=0.05, ds_max=0.1, max_points=40, p_min=0.0,
                                           event_tol=1e-10))
-
-
-def test_lure_period_doubling_at_published_value(lure_branch):
-    sps = _events(lure_branch)
-    assert [sp.kind for sp in sps] == [PERIOD_DOUBLING]
-    pd = sps[0]
-    assert pd.point.p == pytest.approx(ALPHA_PD, abs=1e-7)
-    assert pd.point.extra["period"] == pytest.approx(PERIOD_PD, abs=1e-6)
-    assert pd.data["multiplier"] == pytest.approx(-1.0, abs=1e-8)
-
-
-def test_lure_neutral_saddle_and_liouville(lure_branch):
-    assert not any(sp.kind == TORUS for sp in lure_branch.special_points)
-    end = lure_branch.points[-1]
-    assert end.p == pytest.approx(0.0, abs=1e-12)
-    assert end.extra["period"] == pytest.approx(PERIOD_NEUTRAL_SADDLE, abs=1e-6)
-    mu = end.eigenvalues[~end.trivial]
-    assert np.all(np.abs(mu.imag) < 1e-10) and np.all(mu.real < 0)
-    assert np.prod(mu.real) == pytest.approx(1.0, abs=1e-7)
-    for pt in lure_branch.points:  # Liouville: μ1 μ2 = exp(-α T), exact for the flow
-        mu = pt.eigenvalues[~pt.trivial]
-        assert np.prod(mu).real == pytest.approx(np.exp(-pt.p * pt.extra["period"]), rel=1e-7)
 
 
 def _freire_cycles(eps, p_min=-0.63, max_points=40, event_tol=1e-10, **consts):
