@@ -113,15 +113,10 @@ def default_switchers(standing_subspace: str | None = "auto",
             if sub == "auto":
                 subs = list(getattr(model.symmetries, "invariant_subspaces", {}) or {})
                 sub = subs[0] if len(subs) == 1 else None
-            kw = cycle_kw(model)
-            if sub is None and not kw:
-                # Without an invariant subspace the standing wave is a relative
-                # periodic orbit (drift -> 0), which only shooting solves.
-                kw = {"method": "shooting"}
             try:
                 out.append(one_way(cs.standing_wave_from_double_hopf(
                     model, problem.param, sp, params=params_of(problem, sp.point.p),
-                    subspace=sub, **kw), "standing wave"))
+                    subspace=sub, **cycle_kw(model)), "standing wave"))
             except SWITCH_FAILURES as exc:
                 errors.append(f"standing wave: {type(exc).__name__}: {exc}")
             if errors:

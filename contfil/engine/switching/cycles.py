@@ -399,7 +399,7 @@ def standing_wave_from_double_hopf(
     ``method="collocation"`` (the default for a model without ``flow`` when
     ``steps`` is not given) the subspace solve is a :class:`CollocationProblem`
     seeded with ``u* + ε Re(ŝ e^{2πiτ})``; collocation has no drift unknown,
-    so it needs ``subspace``.
+    so it needs ``subspace`` (without one the default is shooting).
     """
     hd, L = _o2_modes(model, hopf, symmetry_index)
     modes = hd["modes"]
@@ -420,6 +420,10 @@ def standing_wave_from_double_hopf(
     base = np.asarray(params if params is not None else hd["params"], dtype=float)
     T0 = 2 * np.pi / abs(om)
     u0 = u_s + e * d
+    if method is None and subspace is None:
+        # Without an invariant subspace the standing wave is a relative
+        # periodic orbit (drift -> 0), which only shooting solves.
+        method = "shooting"
     if cycle_method(model, method, steps) == "collocation":
         if subspace is None:
             raise ContfilError(
