@@ -3,7 +3,7 @@
 ::
 
     contfil run SPEC [--out DIR] [--resume] [--no-plots] [--quiet]
-                     [--cluster serial|local|ADDRESS] [--workers N]
+                     [--cluster serial|local|slurm|pbs|ADDRESS] [--workers N]
     contfil simulate SPEC [--out DIR]
     contfil export RUN --format json|graphml [-o FILE] [--states]
     contfil plot RUN [--out DIR] [--observable NAME]
@@ -82,12 +82,15 @@ def _parser() -> argparse.ArgumentParser:
                    help="carry on an interrupted run in --out (or the newest runs/<name>*)")
     r.add_argument("--no-plots", action="store_true", help="skip the PNG figures")
     r.add_argument("--quiet", action="store_true", help="no progress line, no summary")
-    r.add_argument("--cluster", metavar="serial|local|ADDRESS",
+    r.add_argument("--cluster", metavar="serial|local|slurm|pbs|ADDRESS",
                    help="where branch tasks run: serial (default), local (a Dask "
-                        "LocalCluster on this machine) or a Dask scheduler address "
-                        "tcp://host:8786 (overrides explorer.cluster; needs contfil[dask])")
+                        "LocalCluster on this machine), slurm or pbs (worker jobs "
+                        "through dask-jobqueue, set up by its jobqueue.yaml) or a Dask "
+                        "scheduler address tcp://host:8786 (overrides explorer.cluster; "
+                        "needs contfil[dask], and contfil[cluster] for slurm/pbs)")
     r.add_argument("--workers", type=_positive_int, metavar="N",
-                   help="worker processes of --cluster local (default: one per core)")
+                   help="worker processes of --cluster local (default: one per core); "
+                        "worker jobs of slurm/pbs (default 1)")
 
     s = sub.add_parser("simulate", help="integrate the spec's model in time")
     s.add_argument("spec", help="spec file (TOML) with [scene] or [model]")

@@ -108,9 +108,9 @@ def _string_list(key: str, v: Any) -> list[str]:
 
 def _cluster(key: str, v: Any) -> str:
     v = _string(key, v)
-    if v not in ("serial", "local") and "://" not in v:
-        raise SpecError(f"{key}: expected 'serial', 'local' or a Dask scheduler address "
-                        f"like 'tcp://host:8786', got {v!r}")
+    if v not in ("serial", "local", "slurm", "pbs") and "://" not in v:
+        raise SpecError(f"{key}: expected 'serial', 'local', 'slurm', 'pbs' or a Dask "
+                        f"scheduler address like 'tcp://host:8786', got {v!r}")
     return v
 
 
@@ -179,9 +179,11 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
                      f"kinds of branch to compute, from {list(BRANCH_KINDS)} (default: all)"),
         "cluster": (_cluster, None, False,
                     "where branch tasks run: 'serial' (default), 'local' (a Dask "
-                    "LocalCluster) or a Dask scheduler address tcp://host:port"),
+                    "LocalCluster), 'slurm' or 'pbs' (worker jobs through "
+                    "dask-jobqueue) or a Dask scheduler address tcp://host:port"),
         "workers": (_integer(1), None, False,
-                    "worker processes of a 'local' cluster (default: one per core)"),
+                    "worker processes of a 'local' cluster (default: one per core), "
+                    "worker jobs of 'slurm'/'pbs' (default 1)"),
     },
     "output": {
         "dir": (_string, None, False, "run directory (default: runs/<spec name>)"),

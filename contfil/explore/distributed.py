@@ -2,8 +2,10 @@
 
 ``contfil run SPEC --cluster local`` starts a ``LocalCluster`` on this
 machine (one single-threaded worker process per core); ``--cluster
-tcp://host:8786`` uses the scheduler of a running cluster (e.g. one started
-by ``dask-jobqueue`` on SLURM or PBS, see ``docs/cluster.md``). Dask is an
+slurm`` / ``pbs`` submits ``--workers`` worker jobs through
+``dask-jobqueue`` (configured by the user's ``jobqueue.yaml``); ``--cluster
+tcp://host:8786`` uses the scheduler of a running cluster (see
+``docs/cluster.md``). Dask is an
 optional dependency (``pip install 'contfil[dask]'``); it is imported only
 here, and only when a cluster is asked for.
 
@@ -17,9 +19,11 @@ Dask scheduler; a crash of the client loses the tasks in flight, and
 
 from __future__ import annotations
 
+import importlib
 import logging
 import os
 import pickle
+import shutil
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
@@ -100,7 +104,8 @@ def dask_executor(cluster: str, n_workers: int | None = None) -> Iterator[DaskEx
     """A :class:`DaskExecutor` for ``cluster`` while the block runs.
 
     ``cluster`` is ``"local"`` (a ``LocalCluster`` of ``n_workers``
-    single-threaded worker processes, default one per core) or the address
+    single-threaded worker processes, default one per core), ``"slurm"`` or
+    ``"pbs"`` (``n_workers`` batch jobs through dask-jobqueue) or the address
     of a running scheduler (``tcp://host:8786``; ``n_workers`` is then
     the cluster's business). The local cluster is shut down at the end.
     """
@@ -120,8 +125,12 @@ def dask_executor(cluster: str, n_workers: int | None = None) -> Iterator[DaskEx
             client.close()
             lc.close()
         return
+    if cluster in JOBQUEUE_SYSTEMS:
+        with _jobqueue_client(cluster, n_workers, distributed) as client:
+            yield DaskExecutor(client)
+        return
     if not isinstance(cluster, str) or "://" not in cluster and ":" not in cluster:
-        raise ContfilError(f"--cluster: expected 'local' or a scheduler address "
+        raise ContfilError(f"--cluster: expected 'local', 'slurm', 'pbs' or a scheduler address "
                            f"(tcp://host:8786), got {cluster!r}")
     try:
         client = distributed.Client(cluster, timeout="30s")
@@ -132,6 +141,54 @@ def dask_executor(cluster: str, n_workers: int | None = None) -> Iterator[DaskEx
         yield DaskExecutor(client)
     finally:
         client.close()
+
+
+#: Batch systems whose workers dask-jobqueue submits as jobs: the cluster
+#: class and the command that must be on PATH to submit them.
+JOBQUEUE_SYSTEMS: dict[str, tuple[str, str]] = {
+    "slurm": ("SLURMCluster", "sbatch"),
+    "pbs": ("PBSCluster", "qsub"),
+}
+
+
+@contextmanager
+def _jobqueue_client(system: str, n_jobs: int | None, distributed: Any) -> Iterator[Any]:
+    """A client of a dask-jobqueue cluster whose workers are ``n_jobs`` batch
+    jobs (default 1), configured by the user's ``jobqueue.yaml``
+    (``~/.config/dask/``; ``docs/examples/jobqueue.yaml``).
+
+    No worker is waited for: tasks queue at the scheduler until the batch
+    system starts the jobs, however long the queue. The jobs are cancelled
+    when the block ends.
+    """
+    cls_name, submit = JOBQUEUE_SYSTEMS[system]
+    try:
+        jobqueue = importlib.import_module("dask_jobqueue")
+    except ImportError:
+        raise ContfilError(f"--cluster {system}: dask-jobqueue is not installed "
+                           f"(pip install 'contfil[cluster]')") from None
+    import dask
+
+    # The configured submit command (a site may wrap sbatch/qsub) must exist
+    # here: dask-jobqueue would only log its failure and wait forever.
+    job_cls = getattr(jobqueue, cls_name).job_cls
+    command = str(dask.config.get(f"jobqueue.{system}.submit-command", None)
+                  or job_cls.submit_command).split()[0]
+    if shutil.which(command) is None:
+        raise ContfilError(f"--cluster {system}: the submit command {command!r} is not on "
+                           f"PATH (run the client on a node that can submit jobs)")
+    try:
+        cluster = getattr(jobqueue, cls_name)()
+    except (ValueError, KeyError, TypeError) as exc:
+        raise ContfilError(f"--cluster {system}: the dask-jobqueue configuration is not "
+                           f"usable: {' '.join(str(exc).split())[:200]}") from None
+    client = distributed.Client(cluster)
+    try:
+        cluster.scale(jobs=int(n_jobs or 1))
+        yield client
+    finally:
+        client.close()
+        cluster.close()
 
 
 def as_executor(client: Any) -> Executor:
