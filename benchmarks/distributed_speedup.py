@@ -1,9 +1,12 @@
 """Serial against a 2-worker Dask LocalCluster, side by side in one run.
 
-Part 1: the four quick paper studies (``branches/*_quick.toml``), each run
-serially in this process and then with its branch tasks on the cluster;
-wall times, the speed-up and whether the two runs stored the same points
-(bit for bit) and the same graph.
+Part 1: the four paper studies, each run serially in this process and
+then with its branch tasks on the cluster; wall times, the speed-up and
+whether the two runs stored the same points (bit for bit) and the same
+graph. ``--specs paper`` runs the low-to-moderate studies as they are
+(``branches/<model>.toml``, about half an hour serially on this machine
+with exact tangents), ``--specs quick`` (default) their quick variants
+(``branches/*_quick.toml``, equilibria and rotating waves, a few minutes).
 
 Part 2: a sweep of 16 long simulations, the largest Lyapunov exponent of
 the Lorenz system at 16 values of rho (``contfil.analysis.lyapunov``, RK4
@@ -14,7 +17,8 @@ The cluster is started once, before both parts, and its workers import
 the filament model and load its compiled kernels before any timing (that
 start-up is reported on its own). The last line is one JSON object.
 
-    python benchmarks/distributed_speedup.py [--steps N] [--only studies|sweep]
+    python benchmarks/distributed_speedup.py [--specs quick|paper] [--steps N]
+                                             [--only studies|sweep] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -94,14 +98,15 @@ def _graph(run: Path) -> tuple[list, list]:
     return [n["id"] for n in g["nodes"]], [(e["source"], e["target"]) for e in g["edges"]]
 
 
-def studies(executor, tmp: Path) -> dict[str, dict]:
+def studies(executor, tmp: Path, specs: str = "quick") -> dict[str, dict]:
     from contfil.app.spec import load_spec
     from contfil.app.study import run_study
     from contfil.explore.progress import ProgressDisplay
 
     out = {}
     for name in STUDIES:
-        spec = load_spec(ROOT / "branches" / f"{name}_quick.toml")
+        suffix = "_quick" if specs == "quick" else ""
+        spec = load_spec(ROOT / "branches" / f"{name}{suffix}.toml")
         row = {}
         for mode in ("serial", "dask"):
             t0 = time.perf_counter()
@@ -110,6 +115,7 @@ def studies(executor, tmp: Path) -> dict[str, dict]:
                             executor=executor if mode == "dask" else None)
             row[f"{mode}_s"] = round(time.perf_counter() - t0, 2)
             row["tasks"] = res.n_tasks
+            row[f"{mode}_load_avg_end"] = round(os.getloadavg()[0], 2)
         row["speedup"] = round(row["serial_s"] / row["dask_s"], 2)
         row["same_points"] = _points(tmp / f"{name}-serial") == _points(tmp / f"{name}-dask")
         row["same_graph"] = _graph(tmp / f"{name}-serial") == _graph(tmp / f"{name}-dask")
@@ -148,6 +154,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--steps", type=int, default=40_000, help="RK4 steps per Lorenz run")
     ap.add_argument("--only", choices=("studies", "sweep"))
+    ap.add_argument("--specs", choices=("quick", "paper"), default="quick",
+                    help="the quick variants of the studies, or the paper specs as they are")
+    ap.add_argument("--keep", type=Path,
+                    help="keep the run directories here (default: a temporary folder)")
     args = ap.parse_args()
 
     import distributed
@@ -164,11 +174,13 @@ def main() -> None:
         print(f"cluster of 2 workers started and warmed up in {t_start:.1f} s", flush=True)
         ex = DaskExecutor(client)
         with tempfile.TemporaryDirectory() as d:
-            tmp = Path(d)
+            tmp = Path(d) if args.keep is None else args.keep
+            tmp.mkdir(parents=True, exist_ok=True)
             res = {"cluster_start_s": round(t_start, 2), "cores": os.cpu_count(),
                    "load_avg": [round(x, 2) for x in os.getloadavg()]}
             if args.only in (None, "studies"):
-                res["studies"] = studies(ex, tmp)
+                res["specs"] = args.specs
+                res["studies"] = studies(ex, tmp, args.specs)
                 tot_s = sum(r["serial_s"] for r in res["studies"].values())
                 tot_d = sum(r["dask_s"] for r in res["studies"].values())
                 res["studies_total"] = {"serial_s": round(tot_s, 2), "dask_s": round(tot_d, 2),
