@@ -11,6 +11,7 @@ from numba import njit
 from contfil.analysis.classify import (
     classify_attractor,
     classify_samples,
+    combination_coverage,
     count_distinct,
     integer_combinations,
 )
@@ -18,7 +19,9 @@ from contfil.errors import ContfilError
 
 # One cached integrator for all test systems (an integer picks the vector
 # field): compiled once, reused across runs.
-STUART_LANDAU, DAMPED, VAN_DER_POL, TORUS, LORENZ = range(5)
+STUART_LANDAU, DAMPED, VAN_DER_POL, TORUS, LORENZ, TORUS4 = range(6)
+# Angular frequencies of the 4-torus: rationally independent.
+W4 = (1.0, np.sqrt(2.0), np.sqrt(3.0), np.sqrt(5.0))
 
 
 @njit(cache=True)
@@ -47,6 +50,15 @@ def _rhs(system: int, u: np.ndarray) -> np.ndarray:
         out[1] = (1.0 - r1) * u[1] + u[0]
         out[2] = (1.0 - r2) * u[2] - w2 * u[3]
         out[3] = (1.0 - r2) * u[3] + w2 * u[2]
+        return out
+    if system == TORUS4:
+        # Four uncoupled Stuart-Landau cycles: an attracting 4-torus.
+        out = np.empty(8)
+        for j, w in enumerate((1.0, np.sqrt(2.0), np.sqrt(3.0), np.sqrt(5.0))):
+            x, y = u[2 * j], u[2 * j + 1]
+            r = x * x + y * y
+            out[2 * j] = (1.0 - r) * x - w * y
+            out[2 * j + 1] = (1.0 - r) * y + w * x
         return out
     # Lorenz (10, 28, 8/3)
     return np.array([10.0 * (u[1] - u[0]), u[0] * (28.0 - u[2]) - u[1],
@@ -167,9 +179,30 @@ def test_helpers() -> None:
     assert count_distinct(np.repeat(circle[:3], 10, axis=0), 1e-3) == 3
     f1, f2 = 0.13, 0.13 * np.sqrt(3)
     peaks = np.array([f1, f2, f1 + f2, 2 * f2 - f1, 0.5])
-    bases, expl = integer_combinations(peaks, 1e-3)
+    bases, expl = integer_combinations(peaks, 1e-3, max_bases=2)
     np.testing.assert_allclose(bases, [f1, f2])
     np.testing.assert_array_equal(expl, [True, True, True, True, False])
+    # A third base is taken from the strongest unexplained peak.
+    f3 = 0.13 * np.sqrt(5)
+    peaks3 = np.array([f1, f2, f3, f1 + f2 - f3, 2 * f3 - f1, f1 + f2 + f3, 3 * f2])
+    bases3, expl3 = integer_combinations(peaks3, 1e-4)
+    np.testing.assert_allclose(bases3, [f1, f2, f3])
+    assert expl3.all()
+    # Orders above the three-base cap (|m| + |n| + |k| <= 6) are not used.
+    _, expl_hi = integer_combinations(np.r_[peaks3, 4 * f1 - 2 * f2 + 3 * f3], 1e-4)
+    assert not expl_hi[-1]
+    # Random peaks (a broadband signal's) are not explained by three bases,
+    # at a resolution where their combinations cover a small part of the axis.
+    rng = np.random.default_rng(7)
+    peaks_r = np.sort(rng.uniform(0.05, 2.0, 40))[::-1]
+    bases_r, expl_r = integer_combinations(peaks_r, 1e-4)
+    assert bases_r.size == 3 and expl_r.mean() < 0.5
+    cover = combination_coverage(bases_r, 1e-4, float(peaks_r.max()))
+    assert 0 < cover < 0.2
+    assert expl_r[3:].mean() <= 3 * cover  # the fit rate is the coverage's order
+    # The coverage of one base is its harmonics' share: 2 tol / f1 per period.
+    assert combination_coverage([1.0], 1e-3, 10.0) == pytest.approx(
+        sum(2e-3 * (0.75 + 0.1 * m) for m in range(1, 10)) / 10 + 1e-3 * 1.75 / 10, rel=1e-9)
 
 
 def test_bad_input() -> None:
@@ -221,3 +254,49 @@ def test_memory_does_not_grow_with_run_length() -> None:
     # 120 000 x 4 x 8 B = 3.8 MB the extra states would take if stored.
     assert peaks[1] - peaks[0] < 0.5e6
     assert peaks[1] < 4e6
+
+
+def _torus3_samples(n: int, dt: float = 0.05):  # exact 3-torus flow
+    w = np.array(W4[:3])
+    for k in range(n):
+        ph = w * k * dt
+        yield np.r_[np.cos(ph), np.sin(ph)]
+
+
+def test_quasiperiodic_three_torus() -> None:
+    """A flow on a 3-torus: quasiperiodic with the three base frequencies."""
+    # Three bases need a fine spectrum: Welch segments of 2^14 samples 0.2
+    # apart (df = 3e-4), where their combinations cover < 20 % of the axis.
+    obs = lambda u: u[0] + u[1] + u[2] + 0.5 * u[0] * u[1] + 0.3 * u[1] * u[2]  # noqa: E731
+    res = classify_samples(_torus3_samples(70_000, 0.2), 0.2, 70_000, observable=obs,
+                           spectrum_size=1 << 14)
+    assert res.label == "quasiperiodic", res.reasons
+    assert res.spectrum is not None and res.spectrum.explained.all()
+    assert res.spectrum.bases.size == 3 and res.spectrum.chance_fit < 0.2
+    # A coarse spectrum (df = 2.4e-3) cannot resolve three bases: the third
+    # is refused rather than allowed to explain anything.
+    coarse = classify_samples(_torus3_samples(60_000), 0.05, 60_000, observable=obs)
+    assert coarse.spectrum is not None and coarse.spectrum.bases.size == 2
+    assert not coarse.spectrum.explained.all()
+    np.testing.assert_allclose(np.sort(res.spectrum.bases), np.array(W4[:3]) / (2 * np.pi),
+                               atol=res.spectrum.frequencies[1])
+
+
+def test_four_torus_is_not_chaotic_when_the_exponent_is_zero() -> None:
+    """Four incommensurate frequencies: more than three bases explain, so the
+    spectrum alone cannot decide; a zero Lyapunov exponent with a discrete
+    spectrum gives ``quasiperiodic``, never ``chaotic``."""
+    h = 0.05
+    u0 = np.array([1.0, 0.0, 0.0, 1.0, -1.0, 0.0, 0.0, -1.0])
+    obs = lambda u: u[0] + u[2] + u[4] + u[6] + 0.5 * u[0] * u[2] + 0.4 * u[4] * u[6]  # noqa: E731
+    res = classify_attractor(_rk4(TORUS4, h), u0, 40_000, h, transient=200,
+                             observable=obs, lyapunov_steps=20_000)
+    assert res.lyapunov is not None
+    assert abs(res.lyapunov.exponent) <= 3 * res.lyapunov.error + 1e-2
+    assert res.spectrum is not None and res.spectrum.discrete_fraction > 0.98
+    assert not res.spectrum.explained.all()  # a fourth frequency is left over
+    assert res.label == "quasiperiodic", res.reasons
+    assert "not positive" in res.reasons[-1]
+    # Without the exponent the same evidence falls back to the last rule.
+    res_s = classify_attractor(_rk4(TORUS4, h), u0, 40_000, h, transient=200, observable=obs)
+    assert res_s.label == "chaotic", res_s.reasons

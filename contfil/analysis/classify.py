@@ -38,8 +38,10 @@ Labels, tested in this order:
     (or, without crossings, the spectrum is discrete with one base frequency);
 ``quasiperiodic``
     the spectrum is discrete (its prominent peaks hold >= ``discrete_power``
-    of the power) and all peaks are integer combinations of two base
-    frequencies;
+    of the power) and all peaks are integer combinations of two or three base
+    frequencies; or the spectrum is discrete, two bases explain its leading
+    peaks but not all, and the Lyapunov exponent (if computed) is not
+    positive;
 ``chaotic``
     otherwise (broadband spectrum and many section points).
 """
@@ -65,6 +67,7 @@ __all__ = [
     "classify_samples",
     "spectral_peaks",
     "integer_combinations",
+    "combination_coverage",
     "count_distinct",
 ]
 
@@ -85,13 +88,18 @@ class SpectrumEvidence:
     peaks:
         Prominent peak frequencies (parabolic-refined), strongest first.
     bases:
-        Base frequencies found (at most 2).
+        Base frequencies found (at most 3), strongest first.
     explained:
-        For each peak, whether it is ``|m f1 + n f2|`` with small integers.
+        For each peak, whether it is ``|m f1 + n f2 + k f3|`` with small
+        integers (:func:`integer_combinations`).
     discrete_fraction:
         Share of the power within +-3 bins of the prominent peaks.
     sample_dt:
         Interval of the decimated series.
+    chance_fit:
+        Share of the frequency axis (up to the highest peak) that the bases'
+        accepted combinations cover: the chance that a peak at a random
+        frequency counts as explained (:func:`combination_coverage`).
     """
 
     frequencies: Vec
@@ -101,6 +109,7 @@ class SpectrumEvidence:
     explained: NDArray[np.bool_]
     discrete_fraction: float
     sample_dt: float
+    chance_fit: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -218,41 +227,109 @@ def spectral_peaks(
 
 
 def integer_combinations(
-    peaks: Vec, df: float, max_order: int = 8, max_harmonic: int = 64
+    peaks: Vec, df: float, max_order: int = 8, max_harmonic: int = 64, max_bases: int = 3,
+    max_order_3: int = 6, max_coverage: float = 0.2,
 ) -> tuple[Vec, NDArray[np.bool_]]:
-    """Base frequencies (<= 2) and which peaks are ``|m f1 + n f2|``.
+    """Base frequencies (at most ``max_bases``) and which peaks are integer
+    combinations ``|m f1 + n f2 + k f3|`` of them.
 
-    ``f1`` is the strongest peak; ``f2`` the strongest one that is not a
-    harmonic of ``f1``. A peak is explained when within
-    ``df (0.75 + 0.1 (|m| + |n|))`` of a combination (the base estimates
-    carry ~0.1 bin error each, hence the growth). With one base, harmonics
-    up to ``max_harmonic`` count (relaxation cycles have many); with two,
-    ``|m|, |n| <= max_order``, since high orders of two incommensurate bases
-    fill the frequency axis densely and would explain anything.
+    ``f1`` is the strongest peak; each further base is the strongest peak
+    the bases so far leave unexplained, taken only while some peak is
+    unexplained. A peak is explained when within
+    ``df (0.75 + 0.1 (|m| + |n| + |k|))`` of a combination (the base
+    estimates carry ~0.1 bin error each, hence the growth). With one base,
+    harmonics up to ``max_harmonic`` count (relaxation cycles have many);
+    with two, ``|m|, |n| <= max_order``; with three, ``|m| + |n| + |k| <=
+    max_order_3``. The orders are capped because high orders of
+    incommensurate bases fill the frequency axis densely and would explain
+    anything; three bases get the tighter cap for the same reason, and a
+    third base is refused when its combinations cover more than
+    ``max_coverage`` of the frequency axis up to the highest peak
+    (:func:`combination_coverage`): at that resolution it would explain a
+    peak at any frequency.
     """
     if peaks.size == 0:
         return np.empty(0), np.zeros(0, dtype=bool)
 
     def fits(p: float, bases: list[float]) -> bool:
         f1 = bases[0]
-        ns = range(-max_order, max_order + 1) if len(bases) == 2 else (0,)
-        mmax = max_order if len(bases) == 2 else max_harmonic
-        for n in ns:
-            rest = p - (n * bases[1] if n else 0.0)
-            for target in (rest, -p - (n * bases[1] if n else 0.0)):
+        if len(bases) == 1:
+            m = int(np.rint(p / f1))
+            return 0 < m <= max_harmonic and abs(p - m * f1) <= df * (0.75 + 0.1 * m)
+        others = bases[1:]
+        span = max_order if len(bases) == 2 else max_order_3
+        ranges = [range(-span, span + 1)] * len(others)
+        for ns in np.array(np.meshgrid(*ranges, indexing="ij")).reshape(len(others), -1).T:
+            order_rest = int(np.abs(ns).sum())
+            if len(bases) == 3 and order_rest > max_order_3:
+                continue
+            rest = float(np.dot(ns, others))
+            for target in (p - rest, -p - rest):
                 m = int(np.rint(target / f1))
-                if abs(m) <= mmax and abs(target - m * f1) <= df * (
-                        0.75 + 0.1 * (abs(m) + abs(n))):
+                order = abs(m) + order_rest
+                if (abs(m) <= max_order if len(bases) == 2 else order <= max_order_3) \
+                        and abs(target - m * f1) <= df * (0.75 + 0.1 * order):
                     return True
         return False
 
-    f1 = float(peaks[0])
-    harm = np.array([fits(float(p), [f1]) for p in peaks])
-    if harm.all():
-        return np.array([f1]), harm
-    f2 = float(peaks[np.flatnonzero(~harm)[0]])
-    expl = np.array([fits(float(p), [f1, f2]) for p in peaks])
-    return np.array([f1, f2]), expl
+    bases = [float(peaks[0])]
+    expl = np.array([fits(float(p), bases) for p in peaks])
+    fmax = float(np.max(peaks))
+    while not expl.all() and len(bases) < max_bases:
+        trial = bases + [float(peaks[np.flatnonzero(~expl)[0]])]
+        if len(trial) >= 3 and combination_coverage(
+                trial, df, fmax, max_order=max_order, max_order_3=max_order_3) > max_coverage:
+            # So many combinations that a peak at a random frequency would
+            # fit one: the third base would explain anything (too coarse a
+            # spectrum for three frequencies). Keep the unexplained peaks.
+            break
+        bases = trial
+        expl = np.array([fits(float(p), bases) for p in peaks])
+    return np.array(bases), expl
+
+
+def combination_coverage(
+    bases: list[float] | Vec, df: float, fmax: float, max_order: int = 8,
+    max_order_3: int = 6,
+) -> float:
+    """Share of ``(0, fmax]`` within tolerance of some combination of ``bases``
+    that :func:`integer_combinations` accepts: the chance that a peak at a
+    random frequency is "explained" (its false-positive rate).
+
+    One base: its harmonics; two: ``|m|, |n| <= max_order``; three:
+    ``|m| + |n| + |k| <= max_order_3``; tolerance ``df (0.75 + 0.1 order)``.
+    """
+    b = np.asarray(bases, dtype=float)
+    if b.size == 0 or fmax <= 0:
+        return 0.0
+    span = max_order if b.size <= 2 else max_order_3
+    if b.size == 1:
+        ms = np.arange(1, int(fmax / b[0]) + 2)[:, None]
+    else:
+        grids = np.meshgrid(*[np.arange(-span, span + 1)] * b.size, indexing="ij")
+        ms = np.stack([g.ravel() for g in grids], axis=1)
+        if b.size >= 3:
+            ms = ms[np.abs(ms).sum(axis=1) <= span]
+    freq = np.abs(ms @ b)
+    order = np.abs(ms).sum(axis=1)
+    keep = (freq > 0) & (freq <= fmax * 1.01)
+    tol = df * (0.75 + 0.1 * order[keep])
+    lo = np.maximum(freq[keep] - tol, 0.0)
+    hi = np.minimum(freq[keep] + tol, fmax)
+    lo, hi = lo[lo < hi], hi[lo < hi]
+    if lo.size == 0:
+        return 0.0
+    o = np.argsort(lo)
+    lo, hi = lo[o], hi[o]
+    covered, cur_lo, cur_hi = 0.0, lo[0], hi[0]
+    for a, c in zip(lo[1:], hi[1:], strict=True):
+        if a > cur_hi:
+            covered += cur_hi - cur_lo
+            cur_lo, cur_hi = a, c
+        else:
+            cur_hi = max(cur_hi, c)
+    covered += cur_hi - cur_lo
+    return float(min(covered / fmax, 1.0))
 
 
 class _StreamingWelch:
@@ -322,7 +399,8 @@ def _spectrum(welch_acc: _StreamingWelch | None, sample_dt: float) -> SpectrumEv
         mask[max(i - 3, 0): i + 4] = True
     frac = float(psd[mask].sum() / total)
     bases, expl = integer_combinations(peaks, df)
-    return SpectrumEvidence(f, psd, peaks, bases, expl, frac, sample_dt)
+    chance = combination_coverage(bases, df, float(peaks.max())) if peaks.size else 0.0
+    return SpectrumEvidence(f, psd, peaks, bases, expl, frac, sample_dt, chance)
 
 
 class _Accumulator:
@@ -660,17 +738,32 @@ def _label(
         reasons.append(
             f"{spectrum.peaks.size} spectral peaks holding {spectrum.discrete_fraction:.4f} "
             f"of the power; bases {np.round(spectrum.bases, 6).tolist()}, "
-            f"all integer combinations: {allx}"
+            f"all integer combinations: {allx} (chance fit {spectrum.chance_fit:.2f})"
         )
         if spectrum.discrete_fraction >= discrete_power and allx and nb >= 1:
             spec_kind = "periodic" if nb == 1 else "quasiperiodic"
+        elif (spectrum.discrete_fraction >= discrete_power and nb >= 2 and lyap is not None
+              and lyap.exponent <= max(3 * lyap.error, lyap_tol)):
+            # A discrete spectrum whose weak peaks need more bases (or higher
+            # orders) than the capped search allows, with a Lyapunov exponent
+            # that is not positive: chaos would need both a broadband
+            # spectrum and a positive exponent, and shows neither.
+            spec_kind = "quasiperiodic_unresolved"
     # Periodic: a few tight clusters, each visited repeatedly.
     if nc >= 3 and 1 <= nd <= max_period and section.recent.shape[0] >= 3 * nd:
         return "periodic", reasons + [f"section points form {nd} cluster(s)"]
     if nc < 3 and spec_kind == "periodic":
         return "periodic", reasons + ["too few crossings; spectrum has one base frequency"]
     if spec_kind == "quasiperiodic":
-        return "quasiperiodic", reasons + ["discrete spectrum on two base frequencies"]
+        nb = spectrum.bases.size if spectrum is not None else 0
+        return "quasiperiodic", reasons + [f"discrete spectrum on {nb} base frequencies"]
+    if spec_kind == "quasiperiodic_unresolved":
+        assert spectrum is not None
+        n_x = int(spectrum.explained.sum())
+        return "quasiperiodic", reasons + [
+            f"discrete spectrum ({spectrum.discrete_fraction:.4f} of the power in peaks) and "
+            f"an exponent that is not positive; {n_x} of {spectrum.peaks.size} peaks are "
+            f"combinations of the bases (a further frequency or higher orders explain the rest)"]
     if spec_kind == "periodic" and nc >= 3:
         # Section says many points but the spectrum one base: a slow drift or
         # a long period; call it by the spectrum.
