@@ -18,6 +18,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+from test_distributed import SPEC as DISTRIBUTED_SPEC
+from test_distributed import assert_same_run
 
 from contfil.app.spec import loads_spec
 from contfil.app.study import run_study
@@ -26,25 +28,9 @@ from contfil.explore.progress import ProgressDisplay
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "docs" / "examples" / "jobqueue.yaml"
 
-SPEC = """
-[model]
-name = "chafee_infante"
-
-[continuation]
-range = [0.0, 10.0]
-ds = 0.5
-ds_max = 1.0
-max_points = 15
-
-[explorer]
-depth = 1
-kinds = ["branch_point"]
-
-[output]
-plots = false
-graphml = false
-fsync = false
-"""
+# The distributed tests' study, cut to the first two pitchforks (fewer tasks).
+SPEC = DISTRIBUTED_SPEC.replace("range = [0.0, 30.0]", "range = [0.0, 10.0]").replace(
+    "max_points = 25", "max_points = 15")
 
 # Stand-in batch system: "submit" runs the job script in its own session
 # (so "cancel" can end the worker and its nanny together) and answers like
@@ -120,7 +106,6 @@ def test_study_through_the_example_slurm_configuration_equals_serial(
         tmp_path: Path, monkeypatch) -> None:
     _jobqueue()
     import dask
-    from test_distributed import assert_same_run
 
     bin_dir = tmp_path / "bin"
     bin_dir.mkdir()
