@@ -56,7 +56,17 @@ from contfil.engine.events.cycles import (
     TorusEvent,
     cycle_events,
 )
-from contfil.engine.linalg.small_blocks import batched_lu, batched_lu_solve, condense_intervals
+from contfil.engine.linalg.small_blocks import (
+    batched_lu,
+    collocation_residual,
+    condense_intervals,
+    condensed_jacobian,
+    phase_row,
+    stage_correct,
+    stage_defect,
+    stage_predict,
+    stage_values,
+)
 from contfil.engine.problems.base import Problem, Stability, resolve_params
 from contfil.engine.problems.collocation_checks import check_orbit, orbit_stability, verify_orbit
 from contfil.engine.problems.collocation_events import (
@@ -291,8 +301,7 @@ class CollocationProblem(Problem):
         pred = self._pred
         if pred is not None and pred[5] is self._tau and pred[3].shape == (N, m, d):
             U0, T0, p0, K0, S = pred[:5]
-            guess = K0 + (np.einsum("jiac,jc->jia", S[..., :d], U - U0) + S[..., d] * (T - T0)
-                          + S[..., d + 1] * (p - p0))
+            guess = stage_predict(K0, S, U - U0, T - T0, p - p0)
             if np.all(np.isfinite(guess)):
                 K = guess
         if K is None or not np.all(np.isfinite(K)):
@@ -300,18 +309,17 @@ class CollocationProblem(Problem):
         lu = self._minv if self._minv is not None and self._minv[0].shape[0] == N else None
         prev = np.inf
         err = np.inf
+        tol = self.stage_tol
         for _ in range(40):
             self.stats["stage_iterations"] += 1
-            Y = U[:, None, :] + hT[:, None, None] * (A @ K)
+            Y = stage_values(U, hT, A, K)
             with np.errstate(all="ignore"):
-                F = self.vf.f(Y, q)
-            r = K - F
-            err = float(np.max(np.abs(r)))
+                F = np.ascontiguousarray(self.vf.f(Y, q))
+            err, fmax = stage_defect(K, F)
             if not np.isfinite(err):
                 raise DomainError("collocation: non-finite stage values (the step was too large)")
-            scale = 1.0 + float(np.max(np.abs(F)))
-            if err <= self.stage_tol * scale or (err <= 1e3 * self.stage_tol * scale
-                                                 and err > 0.25 * prev):
+            scale = 1.0 + fmax
+            if err <= tol * scale or (err <= 1e3 * tol * scale and err > 0.25 * prev):
                 break  # converged, or stalled at the rounding level
             if lu is None or err > 0.25 * prev:
                 # simplified Newton: refresh the frozen stage matrix only when
@@ -321,7 +329,7 @@ class CollocationProblem(Problem):
                 if worst < 1e-14:
                     raise DomainError("collocation: singular stage block (increase ntst)")
                 lu = (LU, piv)
-            K = K - batched_lu_solve(lu[0], lu[1], r.reshape(N, m * d, 1)).reshape(N, m, d)
+            K = stage_correct(K, F, lu[0], lu[1])
             prev = err
         else:
             raise DomainError(f"collocation: the stage equations did not converge in 40 "
@@ -369,39 +377,29 @@ class CollocationProblem(Problem):
             raise SpecError("collocation: the reference orbit has zero velocity (an equilibrium)")
         self.ref = {"Y": s["Y"].copy(), "D": w * D / nrm}
 
-    def _phase(self, Y: Array) -> float:
-        assert self.ref is not None
-        return float(np.sum(self.ref["D"] * (Y - self.ref["Y"])))
-
     # ------------------------------------------------------------- Problem API
     def residual(self, x: Array, p: float) -> Array:
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
         s = self._solve(x, p)
-        U, T, K = s["U"], s["T"], s["K"]
-        Phi = U + (self.h * T)[:, None] * np.einsum("i,jia->ja", self.table.b, K)
-        r = Phi - np.roll(U, -1, axis=0)
-        return np.concatenate([r.ravel(), [self._phase(s["Y"])]])
+        assert self.ref is not None
+        return collocation_residual(s["U"], s["K"], s["Y"], self.h, s["T"], self.table.b,
+                                    self.ref["Y"], self.ref["D"])
 
     def _phase_row(self, lin: dict[str, Any]) -> Array:
+        """``∂ψ/∂(u_j, T, p)``, shape ``(N, d + 2)`` (kept with the linearisation
+        for the phase reference it was computed with)."""
         assert self.ref is not None
-        return np.einsum("jia,jiac->jc", self.ref["D"], lin["dY"])
+        if lin.get("row_ref") is not self.ref:
+            lin["row"] = phase_row(self.ref["D"], lin["dY"])
+            lin["row_ref"] = self.ref
+        return lin["row"]
 
     def jacobian(self, x: Array, p: float) -> Array:
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
         lin = self._linearise(x, p)
-        N, d = self.ntst, self.dim
-        nd = N * d
-        G = np.zeros((self.n, self.n))
-        G[self._blk_rows, self._blk_cols] = lin["dPhi"]
-        idx = np.arange(nd)
-        G[idx, (idx + d) % nd] -= 1.0
-        G[:nd, nd] = lin["dPhi_T"].ravel()
-        row = self._phase_row(lin)
-        G[nd, :nd] = row[:, :d].ravel()
-        G[nd, nd] = float(np.sum(row[:, d]))
-        return G
+        return condensed_jacobian(lin["dPhi"], lin["dPhi_T"], self._phase_row(lin))
 
     def sparse_jacobian(self, x: Array, p: float) -> sp.csr_matrix:
         """``G_x`` as a sparse matrix (block-cyclic with a border)."""
