@@ -39,6 +39,7 @@ see ``docs/collocation.md``).
 
 from __future__ import annotations
 
+import struct
 from collections import OrderedDict
 from collections.abc import Sequence
 from typing import Any
@@ -240,6 +241,7 @@ class CollocationProblem(Problem):
     def tau(self, value: Array) -> None:
         self._tau = np.asarray(value, dtype=float)
         self._h = np.diff(self._tau)
+        self._tau_bytes = self._tau.tobytes()
 
     @property
     def h(self) -> Array:
@@ -262,7 +264,7 @@ class CollocationProblem(Problem):
         return x[:-1].reshape(self.ntst, self.dim), float(x[-1])
 
     def _key(self, x: Array, p: float) -> bytes:
-        return x.tobytes() + np.float64(p).tobytes() + self.tau.tobytes()
+        return x.tobytes() + struct.pack("d", p) + self._tau_bytes
 
     @staticmethod
     def _remember(cache: OrderedDict, key: bytes, val: Any, size: int = 4) -> Any:
