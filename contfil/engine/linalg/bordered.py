@@ -47,9 +47,11 @@ def extended_jacobian(problem: Any, X: Array) -> Array:
 
 def bordered_dense(problem: Any, X: Array, border: Array) -> Array:
     """Dense ``[[G_x, G_p], [border^T]]`` at ``X``."""
-    n = X.size - 1
+    x, p = X[:-1], float(X[-1])
+    n = x.size
     M = np.empty((n + 1, n + 1))
-    M[:-1] = extended_jacobian(problem, X)
+    M[:-1, :-1] = problem.jacobian(x, p)
+    M[:-1, -1] = problem.dp(x, p)
     M[-1] = border
     return M
 

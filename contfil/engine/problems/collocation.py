@@ -393,7 +393,9 @@ class CollocationProblem(Problem):
         for the phase reference it was computed with)."""
         assert self.ref is not None
         if lin.get("row_ref") is not self.ref:
-            lin["row"] = phase_row(self.ref["D"], lin["dY"])
+            row = phase_row(self.ref["D"], lin["dY"])
+            lin["row"] = row
+            lin["gp"] = np.concatenate([lin["dPhi_p"].ravel(), [float(np.sum(row[:, -1]))]])
             lin["row_ref"] = self.ref
         return lin["row"]
 
@@ -428,8 +430,8 @@ class CollocationProblem(Problem):
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
         lin = self._linearise(x, p)
-        row = self._phase_row(lin)
-        return np.concatenate([lin["dPhi_p"].ravel(), [float(np.sum(row[:, self.dim + 1]))]])
+        self._phase_row(lin)
+        return lin["gp"].copy()
 
     def state(self, x: Array) -> Array:
         """The (full-model) state at the phase origin ``τ = 0``."""
