@@ -183,3 +183,37 @@ def test_trivial_defect_zero_for_exact_transport_and_nan_when_not_finite(data):
     assert trivial_defect(exact, fU) <= 1e-15
     blocks[3, 1, 2] = np.nan
     assert np.isnan(trivial_defect(blocks, fU))
+
+
+def test_inexact_stages_only_far_from_a_solution():
+    # Stuart–Landau: the cycle r = sqrt(μ), period 2π / (1 + b μ)
+    from contfil.engine.problems.collocation import INEXACT_FRACTION, CollocationProblem
+    from contfil.models.catalog.cycles_hopf import exact_cycle, stuart_landau
+
+    mu = 0.04
+    ex = exact_cycle(mu, b=0.3)
+    pb = CollocationProblem(stuart_landau(mu=mu, b=0.3), "mu", ntst=20)
+    t = np.linspace(0.0, ex["period"], 200)
+    u = ex["r"] * np.column_stack([np.cos(2 * np.pi * t / ex["period"]),
+                                   np.sin(2 * np.pi * t / ex["period"])])
+    x0 = pb.x_from_samples(t, u)
+    pb.set_reference(x0, mu)
+    x = pb.correct(x0, mu)
+    assert np.max(np.abs(pb.residual(x, mu))) <= 1e-11
+    assert not pb._sol[pb._key(x, mu)]["inexact"]  # a solution: stages to stage_tol
+    pb.jacobian(x, mu)  # the corrector's linearisation: stage predictor and factors
+    xp = x + 1e-3 * np.random.default_rng(5).standard_normal(x.size)
+    r_in = pb.residual(xp, mu)
+    s = pb._sol[pb._key(xp, mu)]
+    assert s["inexact"]  # far from a solution the stage iteration stopped early
+    K = pb.stages(xp, mu)  # asked for without `inexact`: solved to stage_tol
+    assert not pb._sol[pb._key(xp, mu)]["inexact"]
+    Y = stage_values(*pb.split(xp)[:1], pb.h * xp[-1], pb.table.A, K)
+    F = pb.vf.f(Y, pb.params_at(mu))
+    assert np.max(np.abs(K - F)) <= 1e-12 * (1.0 + np.max(np.abs(F)))
+    r_ex = collocation_residual(pb.split(xp)[0], K, Y, pb.h, xp[-1], pb.table.b,
+                                pb.ref["Y"], pb.ref["D"])
+    gmax = np.max(np.abs(r_ex))
+    assert gmax > 1e-5
+    # the inexact residual is the exact one up to the allowed fraction
+    assert 0.0 < np.max(np.abs(r_in - r_ex)) <= INEXACT_FRACTION * gmax

@@ -90,6 +90,16 @@ Array = NDArray[np.float64]
 
 __all__ = ["CollocationProblem", "CollocationBranchPointEvent", "MeshTracker"]
 
+#: A corrector residual above this (max norm) may come from stages solved
+#: only as far as :data:`INEXACT_FRACTION` of it needs (inexact Newton); at or
+#: below it the stages are always solved to ``stage_tol``. Far above any
+#: corrector tolerance in use (1e-10 by default; the round-off acceptance of
+#: the dense Newton looks at residuals up to 1e4 times that).
+INEXACT_FLOOR = 1e-5
+#: Estimated stage-induced error allowed in a residual above
+#: :data:`INEXACT_FLOOR`, relative to it.
+INEXACT_FRACTION = 1e-2
+
 
 class CollocationProblem(Problem):
     """Periodic orbit of ``du/dt = f(u, p)`` by orthogonal collocation.
@@ -284,11 +294,21 @@ class CollocationProblem(Problem):
         M[:, np.arange(m * d), np.arange(m * d)] += 1.0
         return J, M
 
-    def _solve(self, x: Array, p: float) -> dict[str, Any]:
-        """Stage values ``K`` (``f`` at the stages) for mesh values ``x``."""
+    def _solve(self, x: Array, p: float, inexact: bool = False) -> dict[str, Any]:
+        """Stage values ``K`` (``f`` at the stages) for mesh values ``x``.
+
+        With ``inexact`` (the corrector's residuals and Jacobians) the stage
+        iteration may stop early where the condensed residual is large (see
+        :data:`INEXACT_FLOOR`): once the estimated effect of the remaining
+        stage error on ``G`` is below :data:`INEXACT_FRACTION` of ``|G|``, as
+        an inexact Newton method does. Such a solution is marked and solved
+        to ``stage_tol`` when asked for without ``inexact``; a residual at or
+        below the floor, so every converged orbit, always has its stages to
+        ``stage_tol``.
+        """
         key = self._key(x, p)
         hit = self._sol.get(key)
-        if hit is not None:
+        if hit is not None and (inexact or not hit["inexact"]):
             return hit
         U, T = self.split(x)
         if not (np.isfinite(T) and T > 0.0):
@@ -301,7 +321,9 @@ class CollocationProblem(Problem):
         hT = self.h * T
         K = self._warm if self._warm is not None and self._warm.shape == (N, m, d) else None
         pred = self._pred
-        if pred is not None and pred[5] is self._tau and pred[3].shape == (N, m, d):
+        if hit is not None:
+            K = hit["K"]  # finish an inexact solution
+        elif pred is not None and pred[5] is self._tau and pred[3].shape == (N, m, d):
             U0, T0, p0, K0, S = pred[:5]
             guess = stage_predict(K0, S, U - U0, T - T0, p - p0)
             if np.all(np.isfinite(guess)):
@@ -312,6 +334,14 @@ class CollocationProblem(Problem):
         prev = np.inf
         err = np.inf
         tol = self.stage_tol
+        early = False
+        ref = self.ref if inexact else None
+        if ref is not None:
+            # bounds of |δG| per unit stage error: |δΦ_j| <= h_j T |δK| (Σ b = 1),
+            # |δψ| <= Σ|ref_D| max_j h_j T max_i Σ_k |A_ik| |δK|
+            hTmax = float(np.max(hT))
+            gain = hTmax * max(1.0, float(np.sum(np.abs(ref["D"])))
+                               * float(np.max(np.sum(np.abs(A), axis=1))))
         for _ in range(40):
             self.stats["stage_iterations"] += 1
             Y = stage_values(U, hT, A, K)
@@ -331,21 +361,32 @@ class CollocationProblem(Problem):
                 if worst < 1e-14:
                     raise DomainError("collocation: singular stage block (increase ntst)")
                 lu = (LU, piv)
-            K = stage_correct(K, F, lu[0], lu[1])
+            Kn = stage_correct(K, F, lu[0], lu[1])
+            if ref is not None and prev < np.inf:
+                # the corrected stages' error, estimated from the observed
+                # contraction, against the residual they give
+                Yn = stage_values(U, hT, A, Kn)
+                G = collocation_residual(U, Kn, Yn, self.h, T, self.table.b, ref["Y"], ref["D"])
+                gmax = float(np.max(np.abs(G)))
+                if gmax > INEXACT_FLOOR and gain * err * err / prev <= INEXACT_FRACTION * gmax:
+                    K, Y, early = Kn, Yn, True
+                    break
+            K = Kn
             prev = err
         else:
             raise DomainError(f"collocation: the stage equations did not converge in 40 "
                               f"iterations (|r| = {err:.2e}); increase ntst")
         self._warm, self._minv = K, lu
-        return self._remember(self._sol, key, {"K": K, "Y": Y, "U": U, "T": T, "q": q})
+        return self._remember(self._sol, key, {"K": K, "Y": Y, "U": U, "T": T, "q": q,
+                                               "inexact": early})
 
-    def _linearise(self, x: Array, p: float) -> dict[str, Any]:
+    def _linearise(self, x: Array, p: float, inexact: bool = False) -> dict[str, Any]:
         """Transfer blocks and all first derivatives of ``G`` at ``(x, p)``."""
         key = self._key(x, p)
         hit = self._lin.get(key)
-        if hit is not None:
+        if hit is not None and (inexact or not hit["inexact"]):
             return hit
-        s = self._solve(x, p)
+        s = self._solve(x, p, inexact)
         K, Y, T, q = s["K"], s["Y"], s["T"], s["q"]
         J = self.vf.jac(Y, q)
         dq = 1e-6 * (1.0 + abs(p))
@@ -361,7 +402,8 @@ class CollocationProblem(Problem):
         # first-order predictor of the stages for the next solve nearby (the
         # linear condensation AUTO does inside its Newton step)
         self._pred = (s["U"], T, p, K, S, self.tau)
-        out = {"dPhi": dPhi, "dPhi_T": dPhi_T, "dPhi_p": dPhi_p, "dY": dY, "dK": S}
+        out = {"dPhi": dPhi, "dPhi_T": dPhi_T, "dPhi_p": dPhi_p, "dY": dY, "dK": S,
+               "inexact": s["inexact"]}
         return self._remember(self._lin, key, out)
 
     # ------------------------------------------------------------- phase
@@ -383,7 +425,7 @@ class CollocationProblem(Problem):
     def residual(self, x: Array, p: float) -> Array:
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
-        s = self._solve(x, p)
+        s = self._solve(x, p, inexact=True)
         assert self.ref is not None
         return collocation_residual(s["U"], s["K"], s["Y"], self.h, s["T"], self.table.b,
                                     self.ref["Y"], self.ref["D"])
@@ -402,14 +444,14 @@ class CollocationProblem(Problem):
     def jacobian(self, x: Array, p: float) -> Array:
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
-        lin = self._linearise(x, p)
+        lin = self._linearise(x, p, inexact=True)
         return condensed_jacobian(lin["dPhi"], lin["dPhi_T"], self._phase_row(lin))
 
     def sparse_jacobian(self, x: Array, p: float) -> sp.csr_matrix:
         """``G_x`` as a sparse matrix (block-cyclic with a border)."""
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
-        lin = self._linearise(x, p)
+        lin = self._linearise(x, p, inexact=True)
         N, d = self.ntst, self.dim
         nd = N * d
         idx = np.arange(nd)
@@ -429,7 +471,7 @@ class CollocationProblem(Problem):
     def dp(self, x: Array, p: float) -> Array:
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
-        lin = self._linearise(x, p)
+        lin = self._linearise(x, p, inexact=True)
         self._phase_row(lin)
         return lin["gp"].copy()
 
