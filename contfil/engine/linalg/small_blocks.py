@@ -5,6 +5,12 @@ of size ``m·dim`` (12 for a 3-D model with 4 collocation points). numpy's
 batched ``solve``/``inv`` spend most of their time in per-block LAPACK call
 overhead at this size; these kernels are plain Gaussian elimination with
 partial pivoting, compiled once.
+
+The other kernels are the small loops of collocation's stage solve and
+condensed system (stage values, stage defect and correction, the linear
+stage predictor, the condensed residual, the phase row, the dense condensed
+Jacobian): at ``N·m·dim`` = 300 numbers each, numpy's per-call overhead was
+most of their cost.
 """
 
 from __future__ import annotations
@@ -15,7 +21,9 @@ from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
 
-__all__ = ["batched_lu", "batched_lu_solve"]
+__all__ = ["batched_lu", "batched_lu_solve", "condense_intervals", "stage_values",
+           "stage_defect", "stage_correct", "stage_predict", "collocation_residual",
+           "phase_row", "condensed_jacobian"]
 
 
 @njit(cache=True)

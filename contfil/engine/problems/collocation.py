@@ -22,6 +22,9 @@ linearised stage equations, the condensed blocks), ``-I`` beside them, a
 (small) or by sparse LU. The solution is exactly the orthogonal-collocation
 solution (same polynomial space, same collocation equations); eliminating
 the stages nonlinearly instead of linearly only changes the Newton path.
+Far from a solution (``max|G| > INEXACT_FLOOR``) the corrector's residuals
+come from stages solved only as far as an inexact Newton step needs; every
+converged orbit has its stages to ``stage_tol``.
 
 Phase condition: ``ψ = ∫_0^1 <u - u_ref, u̇_ref> dτ = 0`` against the
 previous accepted orbit (Gauss quadrature, exact for these polynomials);
