@@ -231,8 +231,13 @@ def _symmetric_orbit_point(kind, u_guess, T, nu, eps=0.0):
     q[0] = nu
     s = solve_ivp(lambda t, u: freire_rhs(u, q), (0.0, T), u_guess, method="DOP853",
                   rtol=1e-12, atol=1e-14, events=lambda t, u: u[1])
-    r = root(G, np.concatenate([s.y_events[0][0], [T, nu]]), method="hybr",
-             options={"xtol": 1e-13})
+    X0 = np.concatenate([s.y_events[0][0], [T, nu]])
+    r = root(G, X0, method="hybr", options={"xtol": 1e-13})
+    if not r.success:
+        # hybr can stall at a fold (the determinant equation is flat there)
+        # depending on the last digit of the guess; Levenberg–Marquardt from
+        # the same guess, held to the same residual
+        r = root(G, X0, method="lm", options={"xtol": 1e-13})
     assert r.success and np.max(np.abs(r.fun)) < 1e-9
     return r.x[4], r.x[3]
 

@@ -21,7 +21,6 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
 from numpy.typing import NDArray
 
 from contfil.engine.continuation.settings import (
@@ -38,7 +37,7 @@ from contfil.engine.linalg.bordered import (
     bordered_preconditioner,
     gmres_tangent,
 )
-from contfil.engine.linalg.newton import NewtonInfo, newton_dense, newton_krylov
+from contfil.engine.linalg.newton import NewtonInfo, dense_lu_solve, newton_dense, newton_krylov
 from contfil.engine.problems.base import Problem
 from contfil.errors import NonFiniteError
 
@@ -161,7 +160,7 @@ class PseudoArclength:
             if not np.all(np.isfinite(t)) or self.ip(t, t) == 0.0:
                 t = border_tangent / float(c @ border_tangent)
         else:
-            t = sla.lu_solve((lu, piv), rhs, check_finite=False)
+            t = dense_lu_solve((lu, piv), rhs)
         tau = self.unit(t)
         # det is linear in the border row c and M t = e_{n+1}, so
         # det([G_x G_p; c]) = det(M) * (c . t) / (c_b . t); with the point's

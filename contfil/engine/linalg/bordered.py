@@ -10,16 +10,15 @@ bordered by a row ``c`` (a weighted tangent for the arclength condition, or
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-import scipy.linalg as sla
 import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.linalg import LinearOperator, gmres, splu
 
+from contfil.engine.linalg.newton import dense_lu
 from contfil.errors import NonFiniteError
 
 Array = NDArray[np.float64]
@@ -48,9 +47,11 @@ def extended_jacobian(problem: Any, X: Array) -> Array:
 
 def bordered_dense(problem: Any, X: Array, border: Array) -> Array:
     """Dense ``[[G_x, G_p], [border^T]]`` at ``X``."""
-    n = X.size - 1
+    x, p = X[:-1], float(X[-1])
+    n = x.size
     M = np.empty((n + 1, n + 1))
-    M[:-1] = extended_jacobian(problem, X)
+    M[:-1, :-1] = problem.jacobian(x, p)
+    M[:-1, -1] = problem.dp(x, p)
     M[-1] = border
     return M
 
@@ -70,9 +71,7 @@ def bordered_lu(M: Array) -> tuple[tuple[Array, Array], float, float]:
     The sign and log-modulus come from the LU diagonal and the pivots; a
     zero pivot gives ``log|det| = -inf``.
     """
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", sla.LinAlgWarning)
-        lu, piv = sla.lu_factor(M, check_finite=False)
+    lu, piv = dense_lu(M)  # a singular M: a zero pivot, no warning
     d = np.diag(lu)
     sign = float(np.prod(np.sign(d))) * (-1.0) ** int(np.sum(piv != np.arange(M.shape[0])))
     with np.errstate(divide="ignore"):

@@ -22,7 +22,7 @@ from numpy.typing import NDArray
 
 Array = NDArray[np.float64]
 
-__all__ = ["reduce_periodic_pencil", "pencil_multipliers"]
+__all__ = ["reduce_periodic_pencil", "pencil_multipliers", "trivial_defect"]
 
 
 @njit(cache=True)
@@ -87,7 +87,8 @@ def pencil_multipliers(blocks: Array, cap: float = 1e300) -> tuple[NDArray[np.co
     too large to represent is unstable all the same).
     """
     P0, P1 = reduce_periodic_pencil(np.ascontiguousarray(blocks, dtype=np.float64))
-    if np.linalg.cond(P1) < 1e8:
+    sv = np.linalg.svd(P1, compute_uv=False)
+    if sv[-1] * 1e8 > sv[0]:  # cond(P1) < 1e8 (singular values, as np.linalg.cond)
         # moderate multipliers: the standard eigenproblem of -P1⁻¹ P0 is as
         # accurate and much cheaper than the QZ of the pencil
         mu, vecs = np.linalg.eig(np.linalg.solve(-P1, P0))
@@ -100,3 +101,26 @@ def pencil_multipliers(blocks: Array, cap: float = 1e300) -> tuple[NDArray[np.co
                           alpha / np.where(big, 1.0, beta))
     vecs = vecs / np.linalg.norm(vecs, axis=0, keepdims=True)
     return np.asarray(mu, dtype=complex), np.asarray(vecs, dtype=complex)
+
+
+@njit(cache=True)
+def trivial_defect(blocks: Array, fU: Array) -> float:
+    """``max_j |A_j f(u_j) - f(u_{j+1})| / max|f|`` (``u_N = u_0``): how far the
+    transfer blocks are from carrying the time-shift mode into itself."""
+    N, d, _ = blocks.shape
+    worst = 0.0
+    fmax = 0.0
+    for j in range(N):
+        nxt = j + 1 if j + 1 < N else 0
+        for a in range(d):
+            acc = 0.0
+            for c in range(d):
+                acc += blocks[j, a, c] * fU[j, c]
+            v = abs(acc - fU[nxt, a])
+            if v != v:
+                return np.nan  # a non-finite block or field: the check fails
+            if v > worst:
+                worst = v
+            if abs(fU[j, a]) > fmax:
+                fmax = abs(fU[j, a])
+    return worst / max(fmax, 1e-300)

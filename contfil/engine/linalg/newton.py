@@ -19,8 +19,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.linalg as sla
 from numpy.typing import NDArray
+from scipy.linalg import get_lapack_funcs
 from scipy.sparse.linalg import LinearOperator, gmres
 
 from contfil.errors import NonFiniteError
@@ -65,6 +65,28 @@ class NewtonInfo:
     history: list[float] = field(default_factory=list)
     reason: str = ""
     linear_iterations: int = 0
+
+
+def dense_lu(A: Array) -> tuple[Array, NDArray[np.int32]]:
+    """LU factors with partial pivoting of a square matrix (LAPACK ``getrf``;
+    what :func:`scipy.linalg.lu_factor` computes, without its wrapper's
+    per-call overhead, which is most of the cost at continuation sizes).
+    A singular matrix gives a zero on the diagonal of the factors."""
+    getrf = get_lapack_funcs("getrf", (A,))
+    lu, piv, info = getrf(A)
+    if info < 0:
+        raise ValueError(f"dense_lu: illegal argument {-info} to getrf")
+    return lu, piv
+
+
+def dense_lu_solve(lu_piv: tuple[Array, NDArray[np.int32]], b: Array) -> Array:
+    """Solve with the factors of :func:`dense_lu` (LAPACK ``getrs``)."""
+    lu, piv = lu_piv
+    getrs = get_lapack_funcs("getrs", (lu, b))
+    x, info = getrs(lu, piv, b)
+    if info < 0:
+        raise ValueError(f"dense_lu_solve: illegal argument {-info} to getrs")
+    return x
 
 
 def _norm(r: Array) -> float:
@@ -117,10 +139,10 @@ def newton_dense(
         if not np.all(np.isfinite(J)):
             return X, NewtonInfo(False, it, res, hist, NON_FINITE)
         try:
-            lu = sla.lu_factor(J, check_finite=False)
+            lu = dense_lu(J)
             if np.min(np.abs(np.diag(lu[0]))) == 0.0:
                 return X, NewtonInfo(False, it, res, hist, SINGULAR)
-            dX = sla.lu_solve(lu, r, check_finite=False)
+            dX = dense_lu_solve(lu, r)
         except (np.linalg.LinAlgError, ValueError):
             return X, NewtonInfo(False, it, res, hist, SINGULAR)
         Xn = X - dX

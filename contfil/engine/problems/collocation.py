@@ -22,6 +22,9 @@ linearised stage equations, the condensed blocks), ``-I`` beside them, a
 (small) or by sparse LU. The solution is exactly the orthogonal-collocation
 solution (same polynomial space, same collocation equations); eliminating
 the stages nonlinearly instead of linearly only changes the Newton path.
+Far from a solution (``max|G| > INEXACT_FLOOR``) the corrector's residuals
+come from stages solved only as far as an inexact Newton step needs; every
+converged orbit has its stages to ``stage_tol``.
 
 Phase condition: ``ψ = ∫_0^1 <u - u_ref, u̇_ref> dτ = 0`` against the
 previous accepted orbit (Gauss quadrature, exact for these polynomials);
@@ -39,6 +42,7 @@ see ``docs/collocation.md``).
 
 from __future__ import annotations
 
+import struct
 from collections import OrderedDict
 from collections.abc import Sequence
 from typing import Any
@@ -56,7 +60,17 @@ from contfil.engine.events.cycles import (
     TorusEvent,
     cycle_events,
 )
-from contfil.engine.linalg.small_blocks import batched_lu, batched_lu_solve, condense_intervals
+from contfil.engine.linalg.small_blocks import (
+    batched_lu,
+    collocation_residual,
+    condense_intervals,
+    condensed_jacobian,
+    phase_row,
+    stage_correct,
+    stage_defect,
+    stage_predict,
+    stage_values,
+)
 from contfil.engine.problems.base import Problem, Stability, resolve_params
 from contfil.engine.problems.collocation_checks import check_orbit, orbit_stability, verify_orbit
 from contfil.engine.problems.collocation_events import (
@@ -78,6 +92,16 @@ from contfil.protocol import Model, param_index
 Array = NDArray[np.float64]
 
 __all__ = ["CollocationProblem", "CollocationBranchPointEvent", "MeshTracker"]
+
+#: A corrector residual above this (max norm) may come from stages solved
+#: only as far as :data:`INEXACT_FRACTION` of it needs (inexact Newton); at or
+#: below it the stages are always solved to ``stage_tol``. Far above any
+#: corrector tolerance in use (1e-10 by default; the round-off acceptance of
+#: the dense Newton looks at residuals up to 1e4 times that).
+INEXACT_FLOOR = 1e-5
+#: Estimated stage-induced error allowed in a residual above
+#: :data:`INEXACT_FLOOR`, relative to it.
+INEXACT_FRACTION = 1e-2
 
 
 class CollocationProblem(Problem):
@@ -230,6 +254,7 @@ class CollocationProblem(Problem):
     def tau(self, value: Array) -> None:
         self._tau = np.asarray(value, dtype=float)
         self._h = np.diff(self._tau)
+        self._tau_bytes = self._tau.tobytes()
 
     @property
     def h(self) -> Array:
@@ -252,7 +277,7 @@ class CollocationProblem(Problem):
         return x[:-1].reshape(self.ntst, self.dim), float(x[-1])
 
     def _key(self, x: Array, p: float) -> bytes:
-        return x.tobytes() + np.float64(p).tobytes() + self.tau.tobytes()
+        return x.tobytes() + struct.pack("d", p) + self._tau_bytes
 
     @staticmethod
     def _remember(cache: OrderedDict, key: bytes, val: Any, size: int = 4) -> Any:
@@ -272,11 +297,21 @@ class CollocationProblem(Problem):
         M[:, np.arange(m * d), np.arange(m * d)] += 1.0
         return J, M
 
-    def _solve(self, x: Array, p: float) -> dict[str, Any]:
-        """Stage values ``K`` (``f`` at the stages) for mesh values ``x``."""
+    def _solve(self, x: Array, p: float, inexact: bool = False) -> dict[str, Any]:
+        """Stage values ``K`` (``f`` at the stages) for mesh values ``x``.
+
+        With ``inexact`` (the corrector's residuals and Jacobians) the stage
+        iteration may stop early where the condensed residual is large (see
+        :data:`INEXACT_FLOOR`): once the estimated effect of the remaining
+        stage error on ``G`` is below :data:`INEXACT_FRACTION` of ``|G|``, as
+        an inexact Newton method does. Such a solution is marked and solved
+        to ``stage_tol`` when asked for without ``inexact``; a residual at or
+        below the floor, so every converged orbit, always has its stages to
+        ``stage_tol``.
+        """
         key = self._key(x, p)
         hit = self._sol.get(key)
-        if hit is not None:
+        if hit is not None and (inexact or not hit["inexact"]):
             return hit
         U, T = self.split(x)
         if not (np.isfinite(T) and T > 0.0):
@@ -289,10 +324,11 @@ class CollocationProblem(Problem):
         hT = self.h * T
         K = self._warm if self._warm is not None and self._warm.shape == (N, m, d) else None
         pred = self._pred
-        if pred is not None and pred[5] is self._tau and pred[3].shape == (N, m, d):
+        if hit is not None:
+            K = hit["K"]  # finish an inexact solution
+        elif pred is not None and pred[5] is self._tau and pred[3].shape == (N, m, d):
             U0, T0, p0, K0, S = pred[:5]
-            guess = K0 + (np.einsum("jiac,jc->jia", S[..., :d], U - U0) + S[..., d] * (T - T0)
-                          + S[..., d + 1] * (p - p0))
+            guess = stage_predict(K0, S, U - U0, T - T0, p - p0)
             if np.all(np.isfinite(guess)):
                 K = guess
         if K is None or not np.all(np.isfinite(K)):
@@ -300,18 +336,25 @@ class CollocationProblem(Problem):
         lu = self._minv if self._minv is not None and self._minv[0].shape[0] == N else None
         prev = np.inf
         err = np.inf
+        tol = self.stage_tol
+        early = False
+        ref = self.ref if inexact else None
+        if ref is not None:
+            # bounds of |δG| per unit stage error: |δΦ_j| <= h_j T |δK| (Σ b = 1),
+            # |δψ| <= Σ|ref_D| max_j h_j T max_i Σ_k |A_ik| |δK|
+            hTmax = float(np.max(hT))
+            gain = hTmax * max(1.0, float(np.sum(np.abs(ref["D"])))
+                               * float(np.max(np.sum(np.abs(A), axis=1))))
         for _ in range(40):
             self.stats["stage_iterations"] += 1
-            Y = U[:, None, :] + hT[:, None, None] * (A @ K)
+            Y = stage_values(U, hT, A, K)
             with np.errstate(all="ignore"):
-                F = self.vf.f(Y, q)
-            r = K - F
-            err = float(np.max(np.abs(r)))
+                F = np.ascontiguousarray(self.vf.f(Y, q))
+            err, fmax = stage_defect(K, F)
             if not np.isfinite(err):
                 raise DomainError("collocation: non-finite stage values (the step was too large)")
-            scale = 1.0 + float(np.max(np.abs(F)))
-            if err <= self.stage_tol * scale or (err <= 1e3 * self.stage_tol * scale
-                                                 and err > 0.25 * prev):
+            scale = 1.0 + fmax
+            if err <= tol * scale or (err <= 1e3 * tol * scale and err > 0.25 * prev):
                 break  # converged, or stalled at the rounding level
             if lu is None or err > 0.25 * prev:
                 # simplified Newton: refresh the frozen stage matrix only when
@@ -321,21 +364,32 @@ class CollocationProblem(Problem):
                 if worst < 1e-14:
                     raise DomainError("collocation: singular stage block (increase ntst)")
                 lu = (LU, piv)
-            K = K - batched_lu_solve(lu[0], lu[1], r.reshape(N, m * d, 1)).reshape(N, m, d)
+            Kn = stage_correct(K, F, lu[0], lu[1])
+            if ref is not None and prev < np.inf:
+                # the corrected stages' error, estimated from the observed
+                # contraction, against the residual they give
+                Yn = stage_values(U, hT, A, Kn)
+                G = collocation_residual(U, Kn, Yn, self.h, T, self.table.b, ref["Y"], ref["D"])
+                gmax = float(np.max(np.abs(G)))
+                if gmax > INEXACT_FLOOR and gain * err * err / prev <= INEXACT_FRACTION * gmax:
+                    K, Y, early = Kn, Yn, True
+                    break
+            K = Kn
             prev = err
         else:
             raise DomainError(f"collocation: the stage equations did not converge in 40 "
                               f"iterations (|r| = {err:.2e}); increase ntst")
         self._warm, self._minv = K, lu
-        return self._remember(self._sol, key, {"K": K, "Y": Y, "U": U, "T": T, "q": q})
+        return self._remember(self._sol, key, {"K": K, "Y": Y, "U": U, "T": T, "q": q,
+                                               "inexact": early})
 
-    def _linearise(self, x: Array, p: float) -> dict[str, Any]:
+    def _linearise(self, x: Array, p: float, inexact: bool = False) -> dict[str, Any]:
         """Transfer blocks and all first derivatives of ``G`` at ``(x, p)``."""
         key = self._key(x, p)
         hit = self._lin.get(key)
-        if hit is not None:
+        if hit is not None and (inexact or not hit["inexact"]):
             return hit
-        s = self._solve(x, p)
+        s = self._solve(x, p, inexact)
         K, Y, T, q = s["K"], s["Y"], s["T"], s["q"]
         J = self.vf.jac(Y, q)
         dq = 1e-6 * (1.0 + abs(p))
@@ -351,7 +405,8 @@ class CollocationProblem(Problem):
         # first-order predictor of the stages for the next solve nearby (the
         # linear condensation AUTO does inside its Newton step)
         self._pred = (s["U"], T, p, K, S, self.tau)
-        out = {"dPhi": dPhi, "dPhi_T": dPhi_T, "dPhi_p": dPhi_p, "dY": dY, "dK": S}
+        out = {"dPhi": dPhi, "dPhi_T": dPhi_T, "dPhi_p": dPhi_p, "dY": dY, "dK": S,
+               "inexact": s["inexact"]}
         return self._remember(self._lin, key, out)
 
     # ------------------------------------------------------------- phase
@@ -369,45 +424,37 @@ class CollocationProblem(Problem):
             raise SpecError("collocation: the reference orbit has zero velocity (an equilibrium)")
         self.ref = {"Y": s["Y"].copy(), "D": w * D / nrm}
 
-    def _phase(self, Y: Array) -> float:
-        assert self.ref is not None
-        return float(np.sum(self.ref["D"] * (Y - self.ref["Y"])))
-
     # ------------------------------------------------------------- Problem API
     def residual(self, x: Array, p: float) -> Array:
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
-        s = self._solve(x, p)
-        U, T, K = s["U"], s["T"], s["K"]
-        Phi = U + (self.h * T)[:, None] * np.einsum("i,jia->ja", self.table.b, K)
-        r = Phi - np.roll(U, -1, axis=0)
-        return np.concatenate([r.ravel(), [self._phase(s["Y"])]])
+        s = self._solve(x, p, inexact=True)
+        assert self.ref is not None
+        return collocation_residual(s["U"], s["K"], s["Y"], self.h, s["T"], self.table.b,
+                                    self.ref["Y"], self.ref["D"])
 
     def _phase_row(self, lin: dict[str, Any]) -> Array:
+        """``∂ψ/∂(u_j, T, p)``, shape ``(N, d + 2)`` (kept with the linearisation
+        for the phase reference it was computed with)."""
         assert self.ref is not None
-        return np.einsum("jia,jiac->jc", self.ref["D"], lin["dY"])
+        if lin.get("row_ref") is not self.ref:
+            row = phase_row(self.ref["D"], lin["dY"])
+            lin["row"] = row
+            lin["gp"] = np.concatenate([lin["dPhi_p"].ravel(), [float(np.sum(row[:, -1]))]])
+            lin["row_ref"] = self.ref
+        return lin["row"]
 
     def jacobian(self, x: Array, p: float) -> Array:
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
-        lin = self._linearise(x, p)
-        N, d = self.ntst, self.dim
-        nd = N * d
-        G = np.zeros((self.n, self.n))
-        G[self._blk_rows, self._blk_cols] = lin["dPhi"]
-        idx = np.arange(nd)
-        G[idx, (idx + d) % nd] -= 1.0
-        G[:nd, nd] = lin["dPhi_T"].ravel()
-        row = self._phase_row(lin)
-        G[nd, :nd] = row[:, :d].ravel()
-        G[nd, nd] = float(np.sum(row[:, d]))
-        return G
+        lin = self._linearise(x, p, inexact=True)
+        return condensed_jacobian(lin["dPhi"], lin["dPhi_T"], self._phase_row(lin))
 
     def sparse_jacobian(self, x: Array, p: float) -> sp.csr_matrix:
         """``G_x`` as a sparse matrix (block-cyclic with a border)."""
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
-        lin = self._linearise(x, p)
+        lin = self._linearise(x, p, inexact=True)
         N, d = self.ntst, self.dim
         nd = N * d
         idx = np.arange(nd)
@@ -427,9 +474,9 @@ class CollocationProblem(Problem):
     def dp(self, x: Array, p: float) -> Array:
         x = np.asarray(x, dtype=float)
         self._ensure_ref(x, p)
-        lin = self._linearise(x, p)
-        row = self._phase_row(lin)
-        return np.concatenate([lin["dPhi_p"].ravel(), [float(np.sum(row[:, self.dim + 1]))]])
+        lin = self._linearise(x, p, inexact=True)
+        self._phase_row(lin)
+        return lin["gp"].copy()
 
     def state(self, x: Array) -> Array:
         """The (full-model) state at the phase origin ``τ = 0``."""

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.engine.linalg.collocation_floquet import pencil_multipliers
+from contfil.engine.linalg.collocation_floquet import pencil_multipliers, trivial_defect
 from contfil.engine.linalg.floquet import flag_trivial
 from contfil.engine.problems.base import Stability
 from contfil.errors import ConvergenceError
@@ -40,7 +40,10 @@ def orbit_stability(self: Any, x: Array, p: float, vectors: bool = True) -> Stab
     fU = self.vf.f(U, self.params_at(p))
     j = int(np.argmax(np.linalg.norm(fU, axis=1)))
     mu_j, V_j = pencil_multipliers(np.concatenate([blocks[j:], blocks[:j]]))
-    flags, tinfo = flag_trivial(mu_j, V_j, self.trivial_directions(x, p, j))
+    # f(u_j) is at hand (trivial_directions evaluates it again, and adds the
+    # symmetry directions of an orbit solved in a subspace)
+    dirs = [fU[j]] if self._embed is None else self.trivial_directions(x, p, j)
+    flags, tinfo = flag_trivial(mu_j, V_j, dirs)
     if vectors and j > 0:
         mu, V = pencil_multipliers(blocks)
         trivial = np.zeros(mu.size, dtype=bool)
@@ -63,9 +66,7 @@ def orbit_stability(self: Any, x: Array, p: float, vectors: bool = True) -> Stab
     # for the flow; its defect is linear in the discretisation error, also
     # at a fold, where |μ_trivial - 1| grows like its square root (Jordan
     # pair), and it needs no product of blocks (no overflow)
-    moved = np.einsum("jab,jb->ja", self.transfer_blocks(x, p), fU)
-    defect = float(np.max(np.abs(moved - np.roll(fU, -1, axis=0)))
-                   / max(float(np.max(np.abs(fU))), 1e-300))
+    defect = trivial_defect(self.transfer_blocks(x, p), np.ascontiguousarray(fU))
     info: dict[str, Any] = {"trivial_info": tinfo, "method": "collocation",
                             "trivial_distance": float(tinfo.get("distance_from_one", np.nan)),
                             "trivial_defect": defect,

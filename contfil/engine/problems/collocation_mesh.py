@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from contfil.errors import SpecError
@@ -168,13 +169,37 @@ def mesh_monitor(table: GaussTable, h: Array, K: Array, T: float) -> tuple[Array
     """
     m = table.m
     fact = float(np.prod(np.arange(1, m)))
-    D = T * fact * np.einsum("k,jkd->jd", table.lead, K) / h[:, None] ** (m - 1)
-    # jump at the left mesh point of each interval, over the mean width (periodic)
-    hm = 0.5 * (h + np.roll(h, 1))
-    jump = np.linalg.norm(D - np.roll(D, 1, axis=0), axis=1) / hm
-    dm1 = 0.5 * (jump + np.roll(jump, -1))
-    err = table.err_const * h ** (m + 1) * dm1
-    E = h * dm1 ** (1.0 / (m + 1))
+    return _monitor(table.lead, np.ascontiguousarray(h, dtype=float),
+                    np.ascontiguousarray(K, dtype=float), float(T), fact, table.err_const)
+
+
+@njit(cache=True)
+def _monitor(lead: Array, h: Array, K: Array, T: float, fact: float,
+             err_const: float) -> tuple[Array, Array]:
+    # the loops of mesh_monitor, periodic in j
+    N, m, d = K.shape
+    D = np.zeros((N, d))
+    for j in range(N):
+        s = T * fact / h[j] ** (m - 1)
+        for a in range(d):
+            acc = 0.0
+            for k in range(m):
+                acc += lead[k] * K[j, k, a]
+            D[j, a] = s * acc
+    jump = np.empty(N)
+    for j in range(N):
+        jp = j - 1 if j > 0 else N - 1
+        acc = 0.0
+        for a in range(d):
+            acc += (D[j, a] - D[jp, a]) ** 2
+        jump[j] = np.sqrt(acc) / (0.5 * (h[j] + h[jp]))
+    E = np.empty(N)
+    err = np.empty(N)
+    for j in range(N):
+        jn = j + 1 if j + 1 < N else 0
+        dm1 = 0.5 * (jump[j] + jump[jn])
+        err[j] = err_const * h[j] ** (m + 1) * dm1
+        E[j] = h[j] * dm1 ** (1.0 / (m + 1))
     return E, err
 
 
