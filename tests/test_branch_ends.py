@@ -440,6 +440,22 @@ def test_join_needs_the_right_kind_parameter_and_period():
     assert g.join_ends() == []  # joined once
 
 
+def test_collapse_joins_a_torus_of_a_rotating_wave_within_the_relative_tolerance():
+    from contfil.graph.identity import end_join_distance
+
+    end = _sp("rotating_wave_collapse", 741.56, {"joins": "hopf", "p_end": 741.65,
+                                                 "omega": -254.96},
+              pkind=RELATIVE_PERIODIC_ORBIT)
+    torus = _sp(TORUS, 741.50, {}, {"omega": 256.79}, pkind=ROTATING_WAVE)
+    # 0.15 apart: more than 5 % of a span of 2.4, less than 1e-3 of b1 = 741.6
+    assert end_join_distance(end, torus, ROTATING_WAVE, 2.4) == pytest.approx(0.15)
+    assert end_join_distance(end, torus, PERIODIC_ORBIT, 2.4) is None  # not a rotating wave
+    far = _sp(TORUS, 740.5, {}, {"omega": 256.79}, pkind=ROTATING_WAVE)
+    assert end_join_distance(end, far, ROTATING_WAVE, 2.4) is None
+    other_speed = _sp(TORUS, 741.50, {}, {"omega": 300.0}, pkind=ROTATING_WAVE)
+    assert end_join_distance(end, other_speed, ROTATING_WAVE, 2.4) is None
+
+
 # ------------------------------------------------------------------ spec
 
 

@@ -56,7 +56,11 @@ class IdentityTolerance:
     it by ~curvature*ds^2/8); ``min_fraction`` is the share of points that
     must agree. ``join`` is how far (as a fraction of the ending branch's
     parameter span, and relatively in period / angular speed) a branch end
-    may sit from the bifurcation it is joined to (:func:`end_join_distance`).
+    may sit from the bifurcation it is joined to, or ``join_rtol`` relative
+    to the parameter value, whichever is larger (:func:`end_join_distance`):
+    the two are computed by different methods (e.g. a shooting orbit on a
+    time-stepper against the eigenvalues of the continuous rotating-wave
+    problem), each with its own discretisation error.
     """
 
     rtol: float = 1e-3
@@ -64,6 +68,7 @@ class IdentityTolerance:
     chord: float = 0.25
     min_fraction: float = 0.5
     join: float = 0.05
+    join_rtol: float = 1e-3
 
 
 def _state_vector(pt: Point) -> Array:
@@ -377,8 +382,8 @@ def end_join_distance(end: SpecialPoint, target: SpecialPoint, target_branch_kin
     collapse onto a rotating wave meets that wave's torus point). The end's
     parameter is ``data["p_end"]`` when it was extrapolated (the collapse is
     localised short of the singular end), else its point's. Accepted within
-    ``atol + join * span`` (``span``: the parameter extent of the ending
-    branch); where both carry a period (cycles) or an angular speed
+    ``atol + max(join * span, join_rtol * |p|)`` (``span``: the parameter
+    extent of the ending branch); where both carry a period (cycles) or an angular speed
     (collapse: ``data["omega"]`` against the wave's ``omega``) those must
     agree to ``join`` relatively too.
     """
@@ -393,7 +398,8 @@ def end_join_distance(end: SpecialPoint, target: SpecialPoint, target_branch_kin
     if not np.isfinite(p_end):
         p_end = float(end.point.p)
     dp = abs(p_end - float(target.point.p))
-    if dp > tol.atol + tol.join * abs(float(span)):
+    p_scale = max(abs(p_end), abs(float(target.point.p)))
+    if dp > tol.atol + max(tol.join * abs(float(span)), tol.join_rtol * p_scale):
         return None
     pairs = []
     if "period" in end.point.extra and "period" in target.point.extra and \
