@@ -106,6 +106,13 @@ def _string_list(key: str, v: Any) -> list[str]:
     return [_string(f"{key}[{i}]", x) for i, x in enumerate(v)]
 
 
+def _fraction(key: str, v: Any) -> float:
+    v = _number()(key, v)
+    if not 0.0 < v < 1.0:
+        raise SpecError(f"{key}: expected a number between 0 and 1 (exclusive), got {v!r}")
+    return v
+
+
 def _cluster(key: str, v: Any) -> str:
     v = _string(key, v)
     if v not in ("serial", "local", "slurm", "pbs") and "://" not in v:
@@ -177,6 +184,13 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "dedup_after": (_integer(2), 6, False, "points before the early duplicate test"),
         "branches": (_string_list, None, False,
                      f"kinds of branch to compute, from {list(BRANCH_KINDS)} (default: all)"),
+        "branch_ends": (_boolean, True, False,
+                        "end branches born at cycle bifurcations where they merge back into "
+                        "their parent's subspace or collapse onto a rotating wave, and join "
+                        "the ends in the graph"),
+        "end_fraction": (_fraction, 0.05, False,
+                         "a relative periodic orbit ends where its co-moving speed falls "
+                         "below this fraction (0 < f < 1) of its largest value"),
         "cluster": (_cluster, None, False,
                     "where branch tasks run: 'serial' (default), 'local' (a Dask "
                     "LocalCluster), 'slurm' or 'pbs' (worker jobs through "

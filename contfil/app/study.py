@@ -168,6 +168,8 @@ def explorer_settings(spec: Spec) -> ExplorerSettings:
         max_points=c["max_points"],
         dedup_after=e["dedup_after"],
         branch_kinds=None if e["branches"] is None else tuple(e["branches"]),
+        branch_ends=e["branch_ends"],
+        end_fraction=e["end_fraction"],
     )
 
 

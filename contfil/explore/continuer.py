@@ -11,6 +11,7 @@ import numpy as np
 
 from contfil.engine.branch import ENDPOINT, Point
 from contfil.engine.continuation.state import ContinuationState
+from contfil.engine.switching.cycle_ends import end_event_state, end_events, restore_end_events
 from contfil.errors import ContfilError
 from contfil.explore.explorer import Step
 from contfil.explore.seeds import Seed
@@ -27,18 +28,26 @@ class _EngineSegment:
         self.end_reason = ""
         self.offset = 0
         self.skip_first = False
+        # A branch born at a cycle switch ends where it merges back into its
+        # parent or collapses onto a rotating wave: its seed names the
+        # terminal events (seed.info["branch_ends"], stored with the switch,
+        # so a resumed or remote run builds the same ones).
+        self.events = end_events(seed.info.get("branch_ends") or [])
         if resume is None or not resume.points:
             d = direction * seed.direction
             self.run = Continuation(seed.problem, seed.x0, seed.p0, settings,
                                     direction=1 if seed.tangent is not None else d,
-                                    tangent=None if seed.tangent is None else d * seed.tangent)
+                                    tangent=None if seed.tangent is None else d * seed.tangent,
+                                    events=self.events)
         else:
             # Restart exactly where the stored run was, from its stored
             # ContinuationState: the last accepted point (it already solves
             # G = 0 and is not re-corrected), its tangent, the step size and
             # the problem's restart data (phase references).
             state = stored_state(resume, seed.problem, settings)
-            self.run = Continuation.from_state(seed.problem, state, settings)
+            restore_end_events(self.events, resume.state.get("end_events"))
+            self.run = Continuation.from_state(seed.problem, state, settings,
+                                               events=self.events)
             self.offset = len(resume.points) - 1
             self.skip_first = True
 
@@ -59,8 +68,10 @@ class _EngineSegment:
                 continue
             first = False
             state = run.state
-            yield Step(point=pt, x=np.array(state.x, dtype=float), specials=sps,
-                       state=state.to_dict())
+            rec = state.to_dict()
+            if self.events:
+                rec["end_events"] = end_event_state(self.events)
+            yield Step(point=pt, x=np.array(state.x, dtype=float), specials=sps, state=rec)
         self.end_reason = str(run.stop_reason or "stopped")
 
 

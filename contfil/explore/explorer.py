@@ -41,7 +41,16 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from contfil.engine.branch import Branch, Point, SpecialPoint, decode, encode
+from contfil.engine.branch import (
+    CYCLE_BRANCH_POINT,
+    PERIOD_DOUBLING,
+    Branch,
+    Point,
+    SpecialPoint,
+    decode,
+    encode,
+)
+from contfil.engine.switching.cycle_ends import END_FRACTION, branch_end_specs
 from contfil.errors import ContfilError
 from contfil.explore.observers import (
     BranchDone,
@@ -138,6 +147,15 @@ class ExplorerSettings:
     branch_kinds:
         Kinds of branch to compute (``None``: all). Seeds of other kinds are
         not continued; the special point lists them under ``not_followed``.
+    branch_ends:
+        End a branch born at a cycle bifurcation (:data:`CYCLE_SWITCH_KINDS`)
+        where it merges back into its parent's invariant subspace or where a
+        relative periodic orbit collapses onto a rotating wave, and join that
+        end to the matching bifurcation in the graph
+        (:mod:`contfil.engine.switching.cycle_ends`).
+    end_fraction:
+        The collapse test fires where the co-moving speed falls below this
+        fraction of its largest value on the branch.
     """
 
     depth: int = 1
@@ -148,6 +166,13 @@ class ExplorerSettings:
     max_points: int = 200
     dedup_after: int = 6
     branch_kinds: tuple[str, ...] | None = None
+    branch_ends: bool = True
+    end_fraction: float = END_FRACTION
+
+
+#: Special-point kinds whose switches start branches with terminal events
+#: (a branch of cycles born at a bifurcation of cycles).
+CYCLE_SWITCH_KINDS = frozenset({CYCLE_BRANCH_POINT, PERIOD_DOUBLING})
 
 
 @dataclass
@@ -297,6 +322,9 @@ class Explorer:
             self.graph.mark_switched(sid)
             for sd in seeds:
                 new_tasks.append(_Task(sd, task.depth + 1, sid))
+        # A branch end (re-entry, collapse) is joined to the bifurcation it
+        # meets, whichever of the two was settled first.
+        self.graph.join_ends()
         self.stop.check()
         emit(BranchDone(k, "new", bid, self.graph))
         return new_tasks
@@ -416,6 +444,12 @@ class Explorer:
         for j, sd in enumerate(seeds):
             if not sd.label:
                 sd.label = f"{label}#{j}"
+            if s.branch_ends and sp.kind in CYCLE_SWITCH_KINDS:
+                # Stored with the switch record: a resumed run (or a worker)
+                # rebuilds the same terminal events from it.
+                ends = branch_end_specs(sd, end_fraction=s.end_fraction)
+                if ends:
+                    sd.info["branch_ends"] = ends
         return seeds
 
     def _pending_seed(self, key: str, i: int, d: dict[str, Any], sp: SpecialPoint,
@@ -435,7 +469,8 @@ class Explorer:
             x0=np.asarray(d["x0"], dtype=float), p0=float(d["p0"]),
             direction=int(d["direction"]),
             tangent=None if d["tangent"] is None else np.asarray(d["tangent"], dtype=float),
-            both_directions=d["both_directions"], label=d["label"], info=d.get("info", {}))
+            both_directions=d["both_directions"], label=d["label"],
+            info=decode(d.get("info", {})))
 
     def _problem(self, seed: Seed) -> Any:
         """The seed's problem, computing a pending one now (see :meth:`_switch`)."""

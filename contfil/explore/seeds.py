@@ -44,7 +44,10 @@ class Seed:
     label:
         Human-readable origin, e.g. ``"BP1 +"``.
     info:
-        Free data kept with the branch (switching amplitude, ...).
+        Free data kept with the branch (switching amplitude, ...);
+        ``info["branch_ends"]`` lists the terminal events of a branch born at
+        a cycle switch (:func:`contfil.engine.switching.cycle_ends.branch_end_specs`),
+        stored with the switch record so that a resume rebuilds them.
     """
 
     problem: Any
@@ -71,6 +74,8 @@ class Seed:
             "x0_sum": float(np.sum(x0)),
             "direction": int(self.direction),
             "label": self.label,
+            **({"ends": [str(d.get("event")) for d in self.info["branch_ends"]]}
+               if self.info.get("branch_ends") else {}),
         }
 
 
@@ -175,6 +180,8 @@ def check_seed(name: str, header: dict[str, Any], seed: Seed, direction: int) ->
     old = header.get("seed", {})
     new = seed.fingerprint()
     same = old.get("kind") == new["kind"] and header.get("direction") == direction
+    # A task stored with terminal events is continued with the same ones.
+    same = same and old.get("ends", []) == new.get("ends", [])
     for key in ("p0", "x0_norm", "x0_sum"):
         a, b = float(old.get(key, np.nan)), new[key]
         same = same and abs(a - b) <= 1e-9 * (1.0 + abs(a))

@@ -28,7 +28,8 @@ PERIOD_MEANS = 8
 
 
 def default_switchers(standing_subspace: str | None = "auto",
-                      branch_kinds: tuple[str, ...] | None = None) -> SwitcherRegistry:
+                      branch_kinds: tuple[str, ...] | None = None,
+                      cycle_steps: int | None = None) -> SwitcherRegistry:
     """Engine switching functions by special-point kind (those that exist).
 
     ``standing_subspace``: invariant subspace in which standing waves born
@@ -37,6 +38,9 @@ def default_switchers(standing_subspace: str | None = "auto",
     ``branch_kinds``: kinds of branch wanted (``None``: all); switches that
     could only produce other kinds are not even attempted (their first
     point may cost a shooting solve).
+    ``cycle_steps``: shoot the cycles of a plain ``f(u, p)`` model with this
+    many Radau steps per period instead of solving them by collocation (a
+    branch leaving an invariant subspace is started from a shooting orbit).
     """
     reg = SwitcherRegistry()
 
@@ -71,7 +75,7 @@ def default_switchers(standing_subspace: str | None = "auto",
         # extra flows of length T/PERIOD_MEANS per point. A plain f(u, p)
         # model gets the engine's default for it: collocation.
         if not callable(getattr(model, "flow", None)):
-            return {}
+            return {} if cycle_steps is None else {"steps": int(cycle_steps)}
         return {
             "steps": int(getattr(model, "flow_steps_min", 100)),
             "period_means": PERIOD_MEANS,

@@ -29,6 +29,15 @@ A third node type records states that are not continued branches:
   the bifurcation it was born at, or the branch (and point ``index``) whose
   state started the simulation.
 
+A branch that ends at a bifurcation of another branch (a symmetry-broken
+branch merging back into its parent at a second pitchfork, a relative
+periodic orbit collapsing onto a rotating wave at its torus point) ends on
+a terminal special point (``subspace_reentry``, ``rotating_wave_collapse``);
+an edge ``end -> bifurcation`` (``role="ends_at"``, with the parameter
+distance ``dp`` and the end's ``p_end``) joins the two
+(:meth:`BranchGraph.join_ends`), so the graph reads, e.g.,
+torus ↔ QP1 ↔ pitchfork.
+
 Edges say how they meet: ``branch -> special`` (``role="on"``, with the
 point ``index`` on the branch) when the bifurcation was detected on the
 branch; ``special -> branch`` (``role="born"``) when the branch was started
@@ -87,7 +96,12 @@ from contfil.engine.branch import (
     encode,
 )
 from contfil.errors import ContfilError
-from contfil.graph.identity import IdentityTolerance, same_branch, same_special_point
+from contfil.graph.identity import (
+    IdentityTolerance,
+    end_join_distance,
+    same_branch,
+    same_special_point,
+)
 from contfil.protocol import Symmetries
 
 # Short labels as in AUTO/MatCont diagrams.
@@ -101,6 +115,10 @@ SP_LABELS = {
     PERIOD_DOUBLING: "PD",
     TORUS: "NS",
     ENDPOINT: "EP",
+    # branch ends (contfil.engine.events.cycle_ends): re-entry into the
+    # parent's subspace, collapse onto a rotating wave
+    "subspace_reentry": "RE",
+    "rotating_wave_collapse": "CRW",
 }
 
 #: Kinds of a classified-attractor ("state") node and their labels.
@@ -385,6 +403,52 @@ class BranchGraph:
         src = ref if ref in self._branches else self.special_id(ref)
         return [v for _, v, d in self.g.out_edges(src, data=True) if d.get("role") == "state"]
 
+    def join_ends(self) -> list[tuple[str, str]]:
+        """Join every terminal special point not yet joined to the bifurcation
+        it meets (:func:`~contfil.graph.identity.end_join_distance`: the
+        nearest in parameter of the right kind, on another branch); returns
+        the new ``(end, bifurcation)`` pairs. Called after each settled branch,
+        so the join is made whichever of the two was found first."""
+        made: list[tuple[str, str]] = []
+        for sid, sp in self._sps.items():
+            if not sp.data.get("joins") or self.joined_to(sid) is not None:
+                continue
+            on = [b for b, _, d in self.g.in_edges(sid, data=True) if d.get("role") == "on"]
+            if not on:
+                continue
+            ps = self._branches[on[0]].parameter_values()
+            span = float(ps.max() - ps.min()) if ps.size else 0.0
+            best: tuple[float, str] | None = None
+            for tid, tsp in self._sps.items():
+                if tid == sid:
+                    continue
+                hosts = [b for b, _, d in self.g.in_edges(tid, data=True)
+                         if d.get("role") == "on" and b not in on]
+                for b in hosts:
+                    dp = end_join_distance(sp, tsp, self._branches[b].kind, span, self.tol)
+                    if dp is not None and (best is None or dp < best[0]):
+                        best = (dp, tid)
+            if best is not None:
+                p_end = float(sp.data.get("p_end", sp.point.p))
+                self.g.add_edge(sid, best[1], role="ends_at", dp=float(best[0]),
+                                p_end=p_end if np.isfinite(p_end) else float(sp.point.p))
+                made.append((sid, best[1]))
+        return made
+
+    def joined_to(self, sid: str) -> str | None:
+        """The bifurcation the branch end ``sid`` (id or label) is joined to, if any."""
+        sid = self.special_id(sid)
+        for _, t, d in self.g.out_edges(sid, data=True):
+            if d.get("role") == "ends_at":
+                return str(t)
+        return None
+
+    def ends_at(self, sid: str) -> list[str]:
+        """Branch ends (special-point ids) joined to bifurcation ``sid`` (id or label)."""
+        sid = self.special_id(sid)
+        return [str(u) for u, _, d in self.g.in_edges(sid, data=True)
+                if d.get("role") == "ends_at"]
+
     def mark_switched(self, sid: str) -> None:
         """Remember that the explorer has already switched at ``sid``."""
         self.g.nodes[sid]["switched"] = True
@@ -406,7 +470,8 @@ class BranchGraph:
         """All branches meeting at special point ``sid`` (id or label; detected
         on or born there)."""
         sid = self.special_id(sid)
-        on = [b for b, _ in self.g.in_edges(sid)]
+        # branch ends joined here come in from special points: not branches
+        on = [b for b, _ in self.g.in_edges(sid) if b in self._branches]
         # state nodes hang off special points too; they are not branches
         born = [b for _, b in self.g.out_edges(sid) if b in self._branches]
         return list(dict.fromkeys(on + born))
@@ -420,9 +485,12 @@ class BranchGraph:
         out = []
         for sid in self.special_points_on(bid) + [s for s, _ in self.g.in_edges(bid)]:
             lab = self.label(sid)
-            for other in self.branches_at(sid):
-                if other != bid and (other, lab) not in out:
-                    out.append((other, lab))
+            # a branch end meets the branches at the bifurcation it is joined to
+            linked = [sid] + [t for t in (self.joined_to(sid),) if t] + self.ends_at(sid)
+            for s2 in linked:
+                for other in self.branches_at(s2):
+                    if other != bid and (other, lab) not in out:
+                        out.append((other, lab))
         return out
 
     def state_graph(self) -> nx.MultiGraph:
@@ -440,6 +508,13 @@ class BranchGraph:
             for i, a in enumerate(at):
                 for b in at[i + 1:]:
                     G.add_edge(a, b, key=sid, **attrs)
+            target = self.joined_to(sid)
+            if target is not None:
+                # the ending branch meets the branches at its end's bifurcation
+                for a in at:
+                    for b in self.branches_at(target):
+                        if a != b:
+                            G.add_edge(a, b, key=sid, ends_at=self.label(target), **attrs)
         return G
 
     def summary(self) -> str:
@@ -463,6 +538,11 @@ class BranchGraph:
                        if (sp := self._sps[sid]).data.get("switch_error") else "")
                     + (f"  [not followed: {', '.join(sp.data['not_followed'])}]"
                        if sp.data.get("not_followed") else "")
+                    + (f"  ends at {self.label(t)} (d{br.param}="
+                       f"{self.g.edges[sid, t]['dp']:.3g})"
+                       if (t := self.joined_to(sid)) is not None else "")
+                    + (f"  <- end of {', '.join(self.label(e) for e in ends)}"
+                       if (ends := self.ends_at(sid)) else "")
                 )
         for aid, d in self._states.items():
             src = [u for u, _ in self.g.in_edges(aid)]

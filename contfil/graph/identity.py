@@ -54,13 +54,21 @@ class IdentityTolerance:
     curve; ``chord`` adds a fraction of the other curve's median step
     (points of one smooth curve sit off the chords of another sampling of
     it by ~curvature*ds^2/8); ``min_fraction`` is the share of points that
-    must agree.
+    must agree. ``join`` is how far (as a fraction of the ending branch's
+    parameter span, and relatively in period / angular speed) a branch end
+    may sit from the bifurcation it is joined to, or ``join_rtol`` relative
+    to the parameter value, whichever is larger (:func:`end_join_distance`):
+    the two are computed by different methods (e.g. a shooting orbit on a
+    time-stepper against the eigenvalues of the continuous rotating-wave
+    problem), each with its own discretisation error.
     """
 
     rtol: float = 1e-3
     atol: float = 1e-6
     chord: float = 0.25
     min_fraction: float = 0.5
+    join: float = 0.05
+    join_rtol: float = 1e-3
 
 
 def _state_vector(pt: Point) -> Array:
@@ -239,6 +247,44 @@ def _median_step(curve: Array) -> float:
     return float(np.median(np.linalg.norm(np.diff(curve, axis=0), axis=1)))
 
 
+#: Relative out-of-subspace part above which a state is off an invariant subspace.
+SUBSPACE_TOL = 1e-6
+
+
+def _off_subspace(pt: Point, sub: Any) -> bool | None:
+    u = np.asarray(pt.u, dtype=float)
+    try:
+        w = u - np.asarray(sub.embed(sub.project(u)), dtype=float)
+    except (ValueError, IndexError, TypeError):
+        return None  # the point's state is not one of this model's full states
+    return bool(np.linalg.norm(w) > SUBSPACE_TOL * (1.0 + np.linalg.norm(u)))
+
+
+def _subspace_differs(a: Branch, b: Branch, symmetries: Symmetries | None) -> bool:
+    """One cycle branch lies in a declared invariant subspace, the other off it.
+
+    The phase-invariant signatures see a symmetry-broken branch only at
+    second order in its out-of-subspace amplitude (``z²``): near a vertical
+    pitchfork of cycles its first points sit on the parent's curve. Whether
+    a cycle lies in the subspace does not depend on where it was cut (every
+    point of a subspace orbit lies in it), so it tells the two apart at once.
+    Without a continuous symmetry only: with one, a rotated copy of a
+    subspace orbit is the same state but lies off the subspace.
+    """
+    if symmetries is None or symmetries.continuous or not symmetries.invariant_subspaces:
+        return False
+    for sub in symmetries.invariant_subspaces.values():
+        fa = [_off_subspace(pt, sub) for pt in a.points]
+        fb = [_off_subspace(pt, sub) for pt in b.points]
+        if None in fa or None in fb:
+            continue
+        in_a, in_b = not any(fa), not any(fb)
+        off_a, off_b = sum(fa) > len(fa) / 2, sum(fb) > len(fb) / 2
+        if (in_a and off_b) or (in_b and off_a):
+            return True
+    return False
+
+
 def same_branch(
     a: Branch,
     b: Branch,
@@ -267,6 +313,8 @@ def same_branch(
     if a.kind != b.kind or a.param != b.param:
         return False
     if not a.points or not b.points:
+        return False
+    if a.kind in CYCLE_KINDS and _subspace_differs(a, b, symmetries):
         return False
     f = max(
         _fraction_on(a, b, symmetries, tol, max_samples),
@@ -312,3 +360,54 @@ def same_special_point(
     # Localisation error of a special point is larger than that of a point
     # (secant/bisection on a test function): use a looser, sqrt-scaled bound.
     return d <= atol + np.sqrt(rtol) * 0.1
+
+
+#: What a terminal special point's ``data["joins"]`` may meet: the kinds of
+#: bifurcation, and the kind of branch they must lie on (``None``: any). A
+#: relative periodic orbit collapses onto a rotating wave at a Hopf point of
+#: the co-moving field, which a rotating-wave branch reports as its torus.
+JOIN_TARGETS: dict[str, tuple[frozenset[str], str | None]] = {
+    "cycle_branch_point": (frozenset({"cycle_branch_point"}), None),
+    "hopf": (frozenset({"hopf", "torus"}), ROTATING_WAVE),
+}
+
+
+def end_join_distance(end: SpecialPoint, target: SpecialPoint, target_branch_kind: str,
+                      span: float, tol: IdentityTolerance | None = None) -> float | None:
+    """Parameter distance from a branch end to the bifurcation it meets, or
+    ``None`` if ``target`` is not that bifurcation.
+
+    ``end`` is a terminal special point (``data["joins"]`` names the kind it
+    meets: a subspace re-entry meets the parent's pitchfork of cycles, a
+    collapse onto a rotating wave meets that wave's torus point). The end's
+    parameter is ``data["p_end"]`` when it was extrapolated (the collapse is
+    localised short of the singular end), else its point's. Accepted within
+    ``atol + max(join * span, join_rtol * |p|)`` (``span``: the parameter
+    extent of the ending branch); where both carry a period (cycles) or an angular speed
+    (collapse: ``data["omega"]`` against the wave's ``omega``) those must
+    agree to ``join`` relatively too.
+    """
+    tol = tol or IdentityTolerance()
+    want = JOIN_TARGETS.get(str(end.data.get("joins", "")))
+    if want is None:
+        return None
+    kinds, branch_kind = want
+    if target.kind not in kinds or (branch_kind is not None and target_branch_kind != branch_kind):
+        return None
+    p_end = float(end.data.get("p_end", end.point.p))
+    if not np.isfinite(p_end):
+        p_end = float(end.point.p)
+    dp = abs(p_end - float(target.point.p))
+    p_scale = max(abs(p_end), abs(float(target.point.p)))
+    if dp > tol.atol + max(tol.join * abs(float(span)), tol.join_rtol * p_scale):
+        return None
+    pairs = []
+    if "period" in end.point.extra and "period" in target.point.extra and \
+            target.point.kind in CYCLE_KINDS:
+        pairs.append((float(end.point.extra["period"]), float(target.point.extra["period"])))
+    if "omega" in end.data and "omega" in target.point.extra:
+        pairs.append((abs(float(end.data["omega"])), abs(float(target.point.extra["omega"]))))
+    for a, b in pairs:
+        if abs(a - b) > tol.atol + tol.join * max(abs(a), abs(b)):
+            return None
+    return dp

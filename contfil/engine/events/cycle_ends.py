@@ -126,8 +126,11 @@ class RotatingWaveCollapseEvent(Event):
     ``p_end`` by extrapolating ``A² `` linearly in ``p`` from the two
     accepted points of the step (``A² ∝ p - p_end`` near a Hopf point;
     exact for a normal form), with ``omega`` (the wave's angular speed),
-    ``amplitude`` (``A``), ``terminal``, ``joins = "hopf"`` (the explorer
-    joins it to the rotating wave's Hopf point).
+    ``amplitude`` (``A``), ``terminal``, ``joins = "hopf"``: the explorer's
+    graph joins it to the rotating wave's Hopf point of the co-moving field,
+    which a rotating-wave branch reports as its ``torus`` point (lab frame).
+    The largest ``A`` is run state: :meth:`restart_data` / :meth:`restore`
+    carry it over a resume.
     """
 
     name = "rotating_wave_collapse"
@@ -141,6 +144,20 @@ class RotatingWaveCollapseEvent(Event):
         self.terminal = bool(terminal)
         self._amax = 0.0
         self._problem_id: int | None = None
+        self._restored = False
+
+    def restart_data(self) -> dict[str, float]:
+        """What a resumed run needs to test as the uninterrupted one would:
+        the largest ``A`` met so far on the branch (JSON-able)."""
+        return {"amax": float(self._amax)}
+
+    def restore(self, data: dict[str, Any]) -> None:
+        """Take back :meth:`restart_data` before the resumed run's first point."""
+        self._amax = float(data.get("amax", 0.0))
+        self._problem_id = None
+        # the resumed run's problem is a new object: keep A_max through its
+        # first accepted point instead of starting the maximum afresh
+        self._restored = True
 
     def _scale(self, ctx: EventContext, a: float) -> float:
         if self._problem_id != id(ctx.problem):
@@ -162,7 +179,9 @@ class RotatingWaveCollapseEvent(Event):
     def accepted(self, ctx: EventContext, values: Array) -> Array:
         a, _ = _comoving_speed(ctx)
         if self._problem_id != id(ctx.problem):
-            self._problem_id, self._amax = id(ctx.problem), 0.0
+            self._problem_id = id(ctx.problem)
+            self._amax = self._amax if self._restored else 0.0
+            self._restored = False
         self._amax = max(self._amax, a)
         return np.array([a / self._amax - self.end_fraction if self._amax > 0 else 0.0])
 
