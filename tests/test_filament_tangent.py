@@ -137,13 +137,16 @@ def test_forward_difference_option_is_close_to_central() -> None:
         flow_tangent(m, u, p, T, steps=STEPS, fd="complex")
 
 
-def test_product_keeps_tangents_off_until_the_floquet_split_is_fixed() -> None:
-    """The plain model offers the hook but keeps it off (the studies' rerun
-    found wrong pitchfork kinds with it); the fixed-step wrapper turns it on,
-    and the engine's flow operations follow the flag."""
+def test_product_uses_exact_tangents_and_the_flag_turns_them_off() -> None:
+    """The plain model offers the hook and uses it (the Floquet split's
+    classification and the period floor are fixed, docs/paper-studies.md);
+    ``exact_tangents = False`` on a model hides it, and the engine's flow
+    operations follow the flag."""
     from contfil.engine.flows.ops import FlowOps
 
     m = _model("planar", "squirmer", 100.0)
-    assert flow_tangent_hook(m) is None and not FlowOps(m).exact_tangent
-    fm = FixedStepFlow(m, STEPS)
+    assert flow_tangent_hook(m) is not None and FlowOps(m).has_sweep
+    m.exact_tangents = False
+    assert flow_tangent_hook(m) is None and not FlowOps(m).has_sweep
+    fm = FixedStepFlow(_model("planar", "squirmer", 100.0), STEPS)
     assert flow_tangent_hook(fm) is not None and FlowOps(fm).exact_tangent

@@ -127,6 +127,8 @@ class Continuation:
             ctx, None, t0, ev0))
         self.w = self.pa.w
         self.ds = self.settings.ds
+        #: corrector effort of the last successful attempt (step control)
+        self._effort: float | None = None
         self.branch = Branch(kind=problem.kind, param=problem.param)
         self.branch.meta.update({"theta": self.settings.theta, "n": self.n,
                                  "settings": self.settings.to_dict()})
@@ -255,6 +257,8 @@ class Continuation:
         STEP_FAILURE_CAUSES` value)."""
         s = self.settings
         c0 = self.w * tau0
+        e0 = self.problem.jacobian_effort
+        self._effort = None
         try:
             X, info = self.pa.solve(X0 + ds * tau0, c0, float(c0 @ X0) + ds)
         except NonFiniteError as exc:
@@ -266,6 +270,10 @@ class Continuation:
         if not (info.converged and np.all(np.isfinite(X))):
             cause = "non-finite" if info.reason == NON_FINITE else "corrector"
             return None, None, info, cause, info.reason
+        e1 = self.problem.jacobian_effort
+        # the step control reads the corrector's effort in Newton-iteration
+        # units: cheap iterations (Broyden updates) count at their weight
+        self._effort = float(info.iterations) if e0 is None or e1 is None else float(e1 - e0)
         try:
             ctx = self.pa.context(X, tau0)
         except NonFiniteError as exc:
@@ -380,9 +388,10 @@ class Continuation:
                   f"ds={self.ds:.3g} it={info.iterations} n_unstable={pt.n_unstable}"
                   + "".join(f" *{sp.kind}" for _, sp in new_special))
         if s.adapt:
-            if s.grows_after(info.iterations, pb.fast_iter):
+            effort = self._effort if self._effort is not None else float(info.iterations)
+            if s.grows_after(effort, pb.fast_iter):
                 self.ds = min(self.ds * s.grow, s.ds_max)
-            elif info.iterations >= s.slow_iter:
+            elif effort >= s.slow_iter:
                 self.ds = max(self.ds * s.slow_shrink, s.ds_min)
         if end is not None:
             stop = STOP_BRANCH_END

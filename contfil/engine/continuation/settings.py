@@ -143,10 +143,11 @@ class ContinuationSettings:
         """GMRES tolerance of the matrix-free tangent solve."""
         return float(self.krylov.get("tangent_rtol", TANGENT_RTOL))
 
-    def grows_after(self, iterations: int, problem_fast_iter: int | None = None) -> bool:
+    def grows_after(self, iterations: float, problem_fast_iter: int | None = None) -> bool:
         """Whether a step converged in ``iterations`` is fast enough to grow
         ``ds``: at most ``fast_iter``, or the problem's own ``fast_iter``
-        when it declares one (the larger of the two)."""
+        when it declares one (the larger of the two). ``iterations`` may be
+        an effort in Newton-iteration units (``Problem.jacobian_effort``)."""
         fast = self.fast_iter
         if problem_fast_iter is not None:
             fast = max(fast, int(problem_fast_iter))

@@ -134,9 +134,23 @@ class CycleBranchPointEvent(BranchPointEvent):
             keep &= inside
         return vals[keep]
 
+    @staticmethod
+    def _orientation(ctx: EventContext) -> float:
+        """Sign of the phase conditions' orientation (``±1``; see
+        ``PeriodicOrbitProblem.phase_orientation``). The bordered determinant
+        of a shooting system changes sign with it, with no multiplier
+        anywhere near +1, when a corrector lands on the other crossing of the
+        phase hyperplane with the orbit (tip SF's small standing wave, a
+        segment traced out and back, at b1 = 240.07 and 242.05); the product
+        is the test."""
+        f = getattr(ctx.problem, "phase_orientation", None)
+        if f is None or ctx.jacobian is None:
+            return 1.0
+        return float(f(ctx.jacobian))
+
     def values(self, ctx: EventContext) -> Array:
         if self._dense(ctx):
-            return super().values(ctx)
+            return super().values(ctx) * self._orientation(ctx)
         c = self._real(ctx)
         return np.array([float(np.sum(c.real > 1.0)), float(np.sign(ctx.tangent[-1]))])
 
@@ -150,7 +164,9 @@ class CycleBranchPointEvent(BranchPointEvent):
 
     def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
         if self._dense(ctx0):
-            return super().localiser(ctx0, ctx1, j)
+            g = super().localiser(ctx0, ctx1, j)
+            s0 = self._orientation(ctx0)
+            return lambda ctx: g(ctx) * self._orientation(ctx) * s0
 
         return lambda ctx: _log_nearest_circle(self._real(ctx).real)
 

@@ -111,7 +111,16 @@ def subspace_class(subspace: Any, st: Stability, k: int, threshold: float = 0.5)
     crossing) and the vector no longer says where the mode lives; both the
     in-subspace and the subspace-breaking tests keep such a mode as a
     candidate, so neither loses the crossing it is localising.
+
+    Multipliers computed block by block (``info["block_label"]`` of
+    :func:`~contfil.engine.linalg.floquet.floquet_from_blocks`: the in-subspace
+    block and the block normal to it) are classified by their block, exactly:
+    there the eigenvector is not needed, and a multiplier crossing +1 next to
+    a trivial one is still placed.
     """
+    lab = st.info.get("block_label") if st.info else None
+    if lab is not None and len(lab) == len(st.values) and str(lab[k]) in ("in", "out"):
+        return str(lab[k])
     if st.vectors is None:
         return "unknown"
     v = np.asarray(st.vectors[:, k])

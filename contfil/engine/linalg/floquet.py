@@ -334,56 +334,163 @@ def floquet_multipliers(
     )
 
 
+def _block_trivial_spans(
+    blocks: Sequence[tuple[Array, Array]], directions: Sequence[Array], rank_tol: float = 1e-6
+) -> list[Array]:
+    """The share of ``span(directions)`` that each block's diagonal entry sees.
+
+    In the basis ``[B_0, B_1, ...]`` the monodromy is block upper triangular
+    (``B_0`` spans an invariant subspace, each later block its quotient), so
+    the trivial eigenspace ``span{f, L u}`` meets the last block in the span
+    of its last-block coordinates, and the combinations with no last-block
+    part lie in the earlier blocks, and so on backwards. Returns per block an
+    orthonormal basis (block coordinates, ``k_b x r_b``) of its trivial span;
+    the ranks add up to the rank of the directions. Why per block: a
+    multiplier is trivial *in the block it belongs to*, so a genuine
+    multiplier crossing +1 next to a trivial one of another block can never
+    take that one's place (the filament's beating pitchfork did, when the
+    trivial modes were picked from all eigenvectors by their projection).
+    """
+    sizes = [np.asarray(B).shape[1] for _, B in blocks]
+    out = [np.zeros((k, 0)) for k in sizes]
+    if not len(directions):
+        return out
+    D = np.column_stack([np.asarray(d, dtype=float) for d in directions])
+    nd = np.linalg.norm(D, axis=0)
+    D = D[:, nd > 0] / nd[nd > 0]
+    if D.shape[1] == 0:
+        return out
+    Bfull = np.column_stack([np.asarray(B, dtype=float) for _, B in blocks])
+    Z = np.linalg.lstsq(Bfull, D, rcond=None)[0]
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    A = np.eye(D.shape[1])  # combinations of the directions not yet placed
+    for b in range(len(blocks) - 1, -1, -1):
+        if A.shape[1] == 0:
+            break
+        Zb = Z[starts[b]: starts[b + 1]] @ A
+        if Zb.size == 0:
+            continue
+        U, sv, Vt = np.linalg.svd(Zb, full_matrices=True)
+        r = int(np.sum(sv > rank_tol))
+        out[b] = U[:, :r]
+        A = A @ Vt[r:].T
+    return out
+
+
+def _deflated_block(
+    M: Array, Q: Array
+) -> tuple[NDArray[np.complex128], NDArray[np.complex128], NDArray[np.bool_], float]:
+    """Eigenpairs of the block ``M`` with its trivial span ``Q`` deflated.
+
+    In an orthonormal basis ``[Q, P]`` (``P`` completing ``Q``), ``M`` is
+    block triangular up to the invariance defect ``|Pᵀ M Q|``: the trivial
+    multipliers are the eigenvalues of ``Qᵀ M Q`` and the others those of
+    ``Pᵀ M P``, however close to 1 they are (the same deflation as
+    :func:`floquet_multipliers`). Non-trivial eigenvectors ``P s`` are lifted
+    to ``P s + Q z``, ``(μ - QᵀMQ) z = QᵀMP s``, unless ``μ`` sits on a
+    trivial value. Returns ``(values, vectors, trivial, defect)``.
+    """
+    k, r = M.shape[0], Q.shape[1]
+    if r == 0:
+        w, Y = np.linalg.eig(M)
+        return w.astype(complex), Y.astype(complex), np.zeros(k, bool), 0.0
+    P = np.linalg.svd(np.eye(k) - Q @ Q.T)[0][:, : k - r]
+    R, S = Q.T @ M @ Q, P.T @ M @ P
+    tv, tY = np.linalg.eig(R)
+    nv, sY = np.linalg.eig(S) if k > r else (np.zeros(0, complex), np.zeros((0, 0), complex))
+    Xn = (P @ sY).astype(complex)
+    QMP = Q.T @ M @ P
+    for j, mu in enumerate(nv):
+        A = mu * np.eye(r) - R
+        if np.linalg.cond(A) < 1e12:  # else μ sits on a trivial one: keep P s
+            Xn[:, j] = Xn[:, j] + Q @ np.linalg.solve(A, QMP @ sY[:, j])
+    vals = np.concatenate([tv.astype(complex), nv.astype(complex)])
+    X = np.column_stack([(Q @ tY).astype(complex), Xn])
+    trivial = np.concatenate([np.ones(r, bool), np.zeros(nv.size, bool)])
+    defect = float(np.linalg.norm(P.T @ M @ Q)) if k > r else 0.0
+    return vals, X, trivial, defect
+
+
 def floquet_from_blocks(
     blocks: Sequence[tuple[Array, Array]],
     trivial_directions: Sequence[Array] = (),
     nev: int = 13,
     period: float | None = None,
+    labels: Sequence[str] | None = None,
 ) -> Stability:
     """All Floquet multipliers from dense monodromy blocks (no Arnoldi).
 
     Parameters
     ----------
     blocks:
-        ``(M_b, B_b)`` pairs: the monodromy restricted to an invariant
-        subspace with basis ``B_b`` (columns, ``n x k``), ``M_b`` (``k x k``)
-        in that basis (e.g. the in-plane block of a planar orbit in reduced
-        coordinates and the out-of-plane block in an orthonormal complement).
-        A single ``(M, I)`` is the whole monodromy.
+        ``(M_b, B_b)`` pairs, ordered so that the monodromy is block upper
+        triangular in ``[B_0, B_1, ...]``: ``B_0`` (columns, ``n x k_0``)
+        spans an invariant subspace and ``M_0`` is the monodromy there in
+        that basis (e.g. the in-plane block of a planar orbit in reduced
+        coordinates); a later ``M_b`` is the quotient block in the
+        complement ``B_b`` (the out-of-plane block). A single ``(M, I)`` is
+        the whole monodromy.
     trivial_directions:
-        ``f(u)`` and ``L u`` (full coordinates); the multipliers whose
-        eigenvectors lie in their span are flagged (:func:`flag_trivial`).
+        ``f(u)`` and ``L u`` (full coordinates). Each block gets its share
+        of their span (:func:`_block_trivial_spans`) and deflates it
+        (:func:`_deflated_block`): the trivial multipliers are those of the
+        span, never picked by closeness to 1 or by eigenvector projections.
     nev:
         Number of leading non-trivial pairs whose eigen-residual is reported.
     period:
         If given, ``info["exponents"] = log(μ)/T``.
+    labels:
+        Optional name per block (e.g. ``("in", "out")`` for a subspace
+        solve); ``info["block_label"]`` then names each multiplier's block,
+        which classifies its mode exactly (the events read it).
 
     Returns
     -------
     Stability
         Values sorted leading first, eigenvectors in full coordinates (unit),
         ``residual`` = the largest ``|M_b y - μ y| / |y|`` of the ``nev``
-        leading non-trivial pairs, ``info["method"] = "monodromy"``.
+        leading non-trivial pairs (it includes the invariance defect of the
+        deflated span), ``info["method"] = "monodromy"``.
     """
-    vals_l, vecs_l, res_l = [], [], []
-    for M, B in blocks:
+    if labels is not None and len(labels) != len(blocks):
+        raise ValueError(f"floquet_from_blocks: {len(labels)} labels for {len(blocks)} blocks")
+    spans = _block_trivial_spans(blocks, trivial_directions)
+    vals_l, vecs_l, res_l, triv_l, blk_l = [], [], [], [], []
+    tvals, defects = [], []
+    for b, ((M, B), Q) in enumerate(zip(blocks, spans, strict=True)):
         M = np.asarray(M, dtype=float)
-        w, Y = np.linalg.eig(M)
+        w, Y, triv, defect = _deflated_block(M, Q)
         vals_l.append(w)
         X = np.asarray(B, dtype=float) @ Y
         X = X / np.linalg.norm(X, axis=0, keepdims=True)
         vecs_l.append(X)
         res_l.append(np.linalg.norm(M @ Y - Y * w[None, :], axis=0) / np.linalg.norm(Y, axis=0))
+        triv_l.append(triv)
+        blk_l.append(np.full(w.size, b))
+        tvals.append(w[triv])
+        defects.append(defect)
     vals = np.concatenate(vals_l).astype(complex)
     X = np.column_stack(vecs_l).astype(complex)
     res = np.concatenate(res_l)
+    trivial = np.concatenate(triv_l)
+    blk = np.concatenate(blk_l)
     order = _sort_leading(vals)
-    vals, X, res = vals[order], X[:, order], res[order]
-    trivial, tinfo = flag_trivial(vals, X, list(trivial_directions))
+    vals, X, res, trivial, blk = vals[order], X[:, order], res[order], trivial[order], blk[order]
+    tv = np.concatenate(tvals) if tvals else np.zeros(0, complex)
+    tinfo = {
+        "rank": int(tv.size),
+        "method": "deflation",
+        "ranks": [int(Q.shape[1]) for Q in spans],
+        "values": tv,
+        "distance_from_one": float(np.max(np.abs(tv - 1.0))) if tv.size else float("nan"),
+        # how far each block's trivial span is from invariant (time step, unconverged orbit)
+        "invariance_defect": defects,
+    }
     lead = res[~trivial][: max(int(nev), 0)]
     info: dict[str, Any] = {
         "method": "monodromy",
         "blocks": [int(np.asarray(M).shape[0]) for M, _ in blocks],
+        "block": blk,
         "iterations": 0,
         "operator_applications": 0,
         "converged": True,
@@ -391,6 +498,8 @@ def floquet_from_blocks(
         "residuals": res,
         "trivial_info": tinfo,
     }
+    if labels is not None:
+        info["block_label"] = np.array([str(labels[int(k)]) for k in blk])
     if period is not None and period > 0:
         with np.errstate(divide="ignore", invalid="ignore"):
             info["exponents"] = np.log(vals) / period

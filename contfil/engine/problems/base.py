@@ -96,7 +96,8 @@ class Problem(ABC):
 
     Optional hooks (declared here with defaults; the driver calls them
     unconditionally): ``param``, ``subspace``, ``rhs_evals`` /
-    ``flow_evals`` (cost counters), ``fast_iter`` (step growth),
+    ``flow_evals`` (cost counters), ``fast_iter`` and ``jacobian_effort`` (step
+    growth),
     :meth:`params_at`, :meth:`observables`, :meth:`default_events`,
     :meth:`sparse_jacobian`, :meth:`preconditioner`,
     :meth:`accept`, :meth:`restart_data` / :meth:`restore` (what a resumed
@@ -117,6 +118,10 @@ class Problem(ABC):
     #: Corrector iterations that still count as a fast step for this problem
     #: (``None``: the run's ``fast_iter`` alone decides when ``ds`` grows).
     fast_iter: int | None = None
+    #: Cumulative corrector effort in Newton-iteration units, for problems
+    #: whose iterations differ in kind (``None``: every iteration counts 1;
+    #: the step control then reads the iteration count).
+    jacobian_effort: float | None = None
 
     @abstractmethod
     def residual(self, x: Array, p: float) -> Array:

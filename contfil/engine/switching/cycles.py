@@ -171,8 +171,21 @@ def solve_with_amplitude(
     X0 = np.concatenate([x_guess, [p_guess]])
     if isinstance(problem, CollocationProblem):
         return _direct_newton(problem, F, X0, d, tol, max_iter)
-    X, info = newton_hookstep(F, X0, jvp=jvp, tol=tol, max_iter=max_iter,
-                              name=f"first point of the new {problem.kind} branch")
+    hits0 = getattr(problem, "period_floor_hits", 0)
+    try:
+        X, info = newton_hookstep(F, X0, jvp=jvp, tol=tol, max_iter=max_iter,
+                                  name=f"first point of the new {problem.kind} branch")
+    except ConvergenceError as exc:
+        hits = getattr(problem, "period_floor_hits", 0) - hits0
+        if hits:
+            # the solve was heading for T -> 0 (every state is a fixed point
+            # of the zero-time flow): say so, it is the likely cause
+            raise ConvergenceError(
+                f"{exc}; {hits} trial point(s) refused by the period floor (T below "
+                f"{problem.min_period_fraction:g} of the seed period "
+                f"{problem.period_scale:.6g}: the solve was collapsing to a zero-period "
+                "'orbit')") from exc
+        raise
     return X[:n], float(X[n]), info
 
 

@@ -55,14 +55,11 @@ class FilamentModel:
     """
 
     #: Exact tangents of the flow (``flow_tangent``) for the engine's shooting
-    #: problems. Off in the product for now: the rerun of the four paper
-    #: studies with them (docs/paper-studies.md, "Rerun with exact tangents")
-    #: found the beating pitchfork reported as a non-switchable stability
-    #: change (its critical mode read as in-plane), two spurious branch points
-    #: in tip SF and zero-period "orbits" accepted at the higher double Hopf
-    #: points. :class:`~contfil.models.filament.cycles.FixedStepFlow` (the
-    #: benchmarks and the tangent tests) turns them on.
-    exact_tangents: bool = False
+    #: problems: Newton Jacobians, tangents, Floquet multipliers (in-plane
+    #: and out-of-plane blocks) and period means from one tangent sweep
+    #: (docs/paper-studies.md, "Rerun with exact tangents"). A model may set
+    #: it False to make the engine use finite differences of the flow.
+    exact_tangents: bool = True
 
     def __init__(self, scene: Scene | Mapping[str, Any] | str | Path) -> None:
         if not isinstance(scene, Scene):
