@@ -281,3 +281,27 @@ def test_branch_point_test_does_not_see_the_phase_orientation():
         tests.append(float(ev.values(ctx)[0]))
     assert dets[0] == -dets[1]
     assert np.sign(tests[0]) == np.sign(tests[1]) != 0.0
+
+
+def test_effort_counts_only_the_broyden_corrector():
+    """``jacobian_effort`` counts the Jacobians the Broyden corrector forms
+    (an exact sweep 1, an update ½); problems that form their Jacobians
+    otherwise leave the step control on the iteration count (``None``)."""
+    from contfil.engine.problems.multiple_shooting import MultipleShootingProblem
+
+    m = _stuart_landau()
+    assert MultipleShootingProblem(m, "beta", segments=2).jacobian_effort is None
+    assert PeriodicOrbitProblem(m, "beta", jacobian_update="exact").jacobian_effort is None
+    pb = PeriodicOrbitProblem(m, "beta")
+    far = np.array([1.0 + 1e-2, 0.0, 2 * np.pi + 1e-2])
+    pb.residual(far, 1.0)
+    pb.jacobian(far, 1.0)  # first: an exact sweep
+    assert pb.jacobian_effort == 1.0
+    near = np.array([1.0 + 1e-5, 0.0, 2 * np.pi])
+    pb.residual(near, 1.0)  # the residual fell by far more than half: a Broyden update
+    pb.jacobian(near, 1.0)
+    pb.dp(near, 1.0)  # the same matrix: no new count
+    assert pb.jacobian_effort == 1.5
+    pb.residual(far, 1.0)  # rose again: the update stalled, a new sweep
+    pb.jacobian(far, 1.0)
+    assert pb.jacobian_effort == 2.5

@@ -222,7 +222,9 @@ class PeriodicOrbitProblem(Problem):
         """Corrector Jacobians formed so far, in Newton-iteration units: an
         exact sweep counts 1, a Broyden update ``broyden_weight`` (``None``
         without Broyden updates: every iteration is a Newton iteration)."""
-        return self._effort if self.broyden else None
+        # a subclass with its own Jacobian (multiple shooting) forms none here
+        own = type(self).jacobian is PeriodicOrbitProblem.jacobian
+        return self._effort if self.broyden and own else None
 
     @property
     def tangent_sweeps(self) -> int:
