@@ -95,6 +95,7 @@ def flow_tangent(
     samples: int = 0,
     tol: float = 1e-12,
     fd: str = "central",
+    increments: str = "analytic",
     **stepper_kw: Any,
 ) -> FlowTangent:
     """``phi_T(u)``, ``Dphi_T(u) V``, ``dphi/dT`` and ``dphi/ds`` in one sweep.
@@ -119,10 +120,14 @@ def flow_tangent(
         must be a multiple of ``k``).
     tol, stepper_kw:
         As for :class:`BDF2Stepper`.
+    increments:
+        How each step's ``dR/dz`` gets its increment columns: ``"analytic"``
+        (exact, ``O(N^2)`` per step) or ``"fd"`` (differences of the residual,
+        ``O(N^3)`` per step; the previous path, kept for checking).
     fd:
-        Differences of the increment columns of each step's ``dR/dz``:
-        ``"central"`` (~1e-10 relative error) or ``"forward"`` (half the
-        residual evaluations, ~1e-8).
+        With ``increments="fd"``: ``"central"`` (~1e-10 relative error) or
+        ``"forward"`` differences (half the residual evaluations, ~1e-8).
+        Checked but unused with ``"analytic"``.
 
     Raises
     ------
@@ -132,6 +137,11 @@ def flow_tangent(
     """
     if fd not in ("central", "forward"):
         raise ValueError(f"flow_tangent: fd must be 'central' or 'forward', got {fd!r}")
+    if increments not in ("analytic", "fd"):
+        raise ValueError(
+            f"flow_tangent: increments must be 'analytic' or 'fd', got {increments!r}")
+    mode = (_kt.INC_ANALYTIC if increments == "analytic"
+            else _kt.INC_CENTRAL if fd == "central" else _kt.INC_FORWARD)
     n = default_steps(T) if steps is None else int(steps)
     if n < 1 or not (np.isfinite(T) and T > 0):
         raise ValueError(f"flow_tangent: need T > 0 and steps >= 1, got T={T!r}, steps={n!r}")
@@ -195,7 +205,7 @@ def flow_tangent(
                 "smooth there, so it has no tangent (use more steps)")
         _k._step_setup(k, st.dt, st.par, coef, scale)
         _kt.tangent_step(st._zp, qk, xk, xkm1, uk, coef, par, dpar, ph.flags, tz, tr,
-                         scale, dth, dx, dxm1, du, ddt, ds, fd == "central")
+                         scale, dth, dx, dxm1, du, ddt, ds, mode)
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular step Jacobian)")
     U1 = state_from_frames(st._q)

@@ -66,7 +66,8 @@ from .bdf2_residual import (
 from .effects import F_HYDRO, HYD_RPY, P_A, P_DL, P_ETA
 from .geometry import positions, tangents
 from .quaternion import dexp_inv, dexp_matrix, qexp, qrotmat
-from .rpy import rpy_mobility, self_mobilities
+from .frame_jacobian import velocity_frame_jacobian
+from .rpy import local_mobility, rpy_mobility
 
 #: Central-difference step (radians) of the increment columns of dR/dz:
 #: ~eps^(1/3), the optimum of a central difference of an O(1) function.
@@ -76,6 +77,9 @@ FD_H = 5e-6
 FD_H_FORWARD = 2e-8
 #: Step of the central difference of dexp_inv in u (a 3-vector closed form).
 FD_H_DEXP = 1e-5
+#: How the increment columns of dR/dz are formed (``mode`` of :func:`step_matrices`):
+#: exactly, or by central / forward differences of the residual (the old path, for checks).
+INC_ANALYTIC, INC_CENTRAL, INC_FORWARD = 0, 1, 2
 
 
 @njit(cache=True)
@@ -124,6 +128,14 @@ def _reduced_block(blocks: np.ndarray, zmap: np.ndarray, nu: int) -> np.ndarray:
 
 
 @njit(cache=True)
+def dense_mobility(X: np.ndarray, par: np.ndarray, flags: np.ndarray) -> np.ndarray:
+    """The (6N, 6N) mobility matrix at ``X`` the residual applies matrix-free."""
+    if flags[F_HYDRO] == HYD_RPY:
+        return rpy_mobility(X, par[P_A], par[P_ETA])
+    return local_mobility(X.shape[0], par[P_A], par[P_ETA])
+
+
+@njit(cache=True)
 def load_columns(
     zf: np.ndarray,
     qk: np.ndarray,
@@ -144,28 +156,41 @@ def load_columns(
     multiplied, not the whole ``6N x 6N`` matrix).
     """
     N = qk.shape[0]
-    nz = zmap.shape[0]
-    nl = nz - nu
-    dL = par[P_DL]
-    gdt = coef[C_G] * coef[C_DT]
     q = np.empty((N, 4))
     frames_at(zf, qk, q)
     t = tangents(q)
     Lam, _, _ = unpack_loads(zf, N)
+    M = dense_mobility(positions(t, par[P_DL]), par, flags)
+    return _load_columns(zf, q, t, Lam, coef, par, zmap, rmap, scale, nu, M)
+
+
+@njit(cache=True)
+def _load_columns(
+    zf: np.ndarray,
+    q: np.ndarray,
+    t: np.ndarray,
+    Lam: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    nu: int,
+    M: np.ndarray,
+) -> np.ndarray:
+    """:func:`load_columns` at the step's frames ``q``, tangents ``t``, joint
+    forces ``Lam`` and dense mobility ``M``."""
+    N = q.shape[0]
+    nz = zmap.shape[0]
+    nl = nz - nu
+    dL = par[P_DL]
+    gdt = coef[C_G] * coef[C_DT]
     G = _load_jacobian(q, t, Lam, par, scale[3 * (N - 1)], scale[6 * N - 1])
     Gl = np.empty((6 * N, nl))
     for i in range(6 * N):
         for j in range(nl):
             Gl[i, j] = G[i, zmap[nu + j]]
-    if flags[F_HYDRO] == HYD_RPY:
-        MG = rpy_mobility(positions(t, dL), par[P_A], par[P_ETA]) @ Gl
-    else:
-        mt, mr = self_mobilities(par[P_A], par[P_ETA])
-        MG = Gl.copy()
-        for i in range(3 * N):
-            for j in range(nl):
-                MG[i, j] *= mt
-                MG[3 * N + i, j] *= mr
+    MG = M @ Gl
     out = np.empty((nz, nl))
     u = np.zeros(3)
     for i in range(nz):
@@ -187,6 +212,66 @@ def load_columns(
                                         + A[c, 1] * MG[3 * N + 3 * n + 1, j]
                                         + A[c, 2] * MG[3 * N + 3 * n + 2, j])
     return out
+
+
+@njit(cache=True)
+def residual_frame_jacobian(
+    zf: np.ndarray,
+    q: np.ndarray,
+    t: np.ndarray,
+    X: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    M: np.ndarray,
+) -> np.ndarray:
+    """``dR/dth`` (6N, 3(N-1)): the full scaled residual rows against spatial
+    rotations of the new frames 1..N-1 at fixed loads, exact.
+
+    Position rows ``(dX_n - g dt dV_n)/dL``, orientation rows ``-g dt
+    dexp_inv(u_n) dOmega_n`` (``-g dt dOmega_0`` for the clamped segment);
+    ``dX`` by the robot arm, ``d[V; Omega]`` by
+    :func:`.frame_jacobian.velocity_frame_jacobian` (``M``: the dense
+    mobility at ``X``). The explicit ``u`` of the orientation rows is not
+    part of it (``E`` in :func:`step_matrices`).
+    """
+    N = q.shape[0]
+    dL = par[P_DL]
+    gdt = coef[C_G] * coef[C_DT]
+    Lam, Fc, Tc = unpack_loads(zf, N)
+    W = velocity_frame_jacobian(q, t, X, Lam, Fc, Tc, par, flags, M)
+    nc = 3 * (N - 1)
+    G = np.empty((6 * N, nc))
+    for i in range(3 * N):
+        for j in range(nc):
+            G[i, j] = -gdt / dL * W[i, j]
+    # robot arm: dX_n/dth_m / dL = w_nm C_m, w = 1 (n > m), 1/2 (n = m)
+    for m in range(1, N):
+        t0, t1, t2 = t[m, 0], t[m, 1], t[m, 2]
+        o = 3 * (m - 1)
+        for n in range(m, N):
+            w = 0.5 if n == m else 1.0
+            G[3 * n, o + 1] += w * t2
+            G[3 * n, o + 2] -= w * t1
+            G[3 * n + 1, o] -= w * t2
+            G[3 * n + 1, o + 2] += w * t0
+            G[3 * n + 2, o] += w * t1
+            G[3 * n + 2, o + 1] -= w * t0
+    R = 3 * N
+    for k in range(3):
+        for j in range(nc):
+            G[R + k, j] = -gdt * W[R + k, j]
+    u = np.empty(3)
+    for n in range(1, N):
+        for k in range(3):
+            u[k] = zf[3 * (n - 1) + k]
+        A = dexp_matrix(u, True)
+        for k in range(3):
+            for j in range(nc):
+                G[R + 3 * n + k, j] = -gdt * (A[k, 0] * W[R + 3 * n, j]
+                                              + A[k, 1] * W[R + 3 * n + 1, j]
+                                              + A[k, 2] * W[R + 3 * n + 2, j])
+    return G
 
 
 @njit(cache=True)
@@ -222,7 +307,7 @@ def step_matrices(
     rmap: np.ndarray,
     scale: np.ndarray,
     want_p: bool,
-    central: bool = True,
+    mode: int = INC_ANALYTIC,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """``(J, Jth, c_dt, c_s)`` of a converged step (module docstring).
 
@@ -232,8 +317,10 @@ def step_matrices(
     out-of-plane block along a planar orbit). ``J = dR/dz`` in the scaled
     selected unknowns (nz, nz), ``Jth = dR/dth^k`` (nz, nu), ``c_dt =
     dR/ddt`` and ``c_s = dR/ds`` (nz,; zero unless ``want_p``), ``dpar = d
-    par / ds``. ``central=False``: forward differences for the increment
-    columns (half the residuals, ~1e-8 instead of ~1e-10 relative error).
+    par / ds``. ``mode``: the increment columns exactly
+    (:data:`INC_ANALYTIC`, :func:`residual_frame_jacobian`) or by central
+    (:data:`INC_CENTRAL`, ~1e-10 relative error) or forward
+    (:data:`INC_FORWARD`, ~1e-8) differences of the residual (for checking).
     """
     N = qk.shape[0]
     nz = zmap.shape[0]
@@ -247,66 +334,28 @@ def step_matrices(
     z = np.empty(6 * N)
     for i in range(6 * N):
         z[i] = zf[i] / scale[i]
-    J = np.empty((nz, nz))
-    Jl = load_columns(zf, qk, coef, par, flags, zmap, rmap, scale, nu)
-    for i in range(nz):
-        for j in range(nz - nu):
-            J[i, nu + j] = Jl[i, j]
+    # the step's configuration, loads and dense mobility (shared by the load
+    # columns and the exact increment columns)
     q = np.empty((N, 4))
-    X = np.empty((N, 3))
-    rfull = np.empty(6 * N)
-    rp = np.empty(6 * N)
-    rm = np.empty(6 * N)
-    zp = z.copy()
-    if not central:
-        residual(z, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
-    for j in range(nu):
-        c = zmap[j]
-        if central:
-            zp[c] = z[c] + FD_H
-            residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
-            zp[c] = z[c] - FD_H
-            residual(zp, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
-            zp[c] = z[c]
-            for i in range(nz):
-                J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / (2.0 * FD_H)
-        else:
-            zp[c] = z[c] + FD_H_FORWARD
-            residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
-            zp[c] = z[c]
-            for i in range(nz):
-                J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / FD_H_FORWARD
-    # velocities at the converged step
     frames_at(zf, qk, q)
     t = tangents(q)
     Xn = positions(t, dL)
     Lam, Fc, Tc = unpack_loads(zf, N)
+    Mob = dense_mobility(Xn, par, flags)
+    J = np.empty((nz, nz))
+    Jl = _load_columns(zf, q, t, Lam, coef, par, zmap, rmap, scale, nu, Mob)
+    for i in range(nz):
+        for j in range(nz - nu):
+            J[i, nu + j] = Jl[i, j]
     V, Om = velocities(q, t, Xn, Lam, Fc, Tc, par, flags)
     rinv = -np.ones(6 * N, dtype=np.int64)
     for i in range(nz):
         rinv[rmap[i]] = i
-    # dR/ddt at fixed physical unknowns
-    cfull = np.empty(6 * N)
+    # explicit u dependence E of the orientation rows (I - g dt d_u dexp_inv(u, Omega)
+    # at fixed Omega; a closed 3-vector form, central differences ~1e-11)
+    E = np.zeros((nz, nu))
     u = np.empty(3)
     w = np.empty(3)
-    for n in range(N):
-        for k in range(3):
-            cfull[3 * n + k] = -g * V[n, k] / dL
-        if n == 0:
-            for k in range(3):
-                cfull[3 * N + k] = -g * Om[0, k]
-        else:
-            for k in range(3):
-                u[k] = zf[3 * (n - 1) + k]
-                w[k] = Om[n, k]
-            di = dexp_inv(u, w)
-            for k in range(3):
-                cfull[3 * N + 3 * n + k] = -g * di[k]
-    c_dt = np.empty(nz)
-    for i in range(nz):
-        c_dt[i] = cfull[rmap[i]]
-    # explicit u dependence E of the orientation rows, then Jth = (J_u - E) A Rot
-    E = np.zeros((nz, nu))
     up = np.empty(3)
     for j in range(nu):
         m = zmap[j] // 3  # segment m + 1
@@ -328,22 +377,86 @@ def step_matrices(
                 v += 1.0
             E[ii, j] = v
     B, A, Rt = _segment_blocks(zf, N)
-    ARt = np.empty((N - 1, 3, 3))
-    for m in range(N - 1):
-        ARt[m] = A[m] @ Rt[m]
-    Mr = _reduced_block(ARt, zmap, nu)
-    Ju = np.empty((nz, nu))
-    for i in range(nz):
+    Rr = _reduced_block(Rt, zmap, nu)
+    rp = np.empty(6 * N)
+    rm = np.empty(6 * N)
+    if mode == INC_ANALYTIC:
+        # R depends on u through the new frames (th = dexp(u) du) and
+        # explicitly (E): J_u = G B + E, and dR/dth^k = G Rot(u)
+        G = residual_frame_jacobian(zf, q, t, Xn, coef, par, flags, Mob)
+        Gs = np.empty((nz, nu))
+        for i in range(nz):
+            for j in range(nu):
+                Gs[i, j] = G[rmap[i], zmap[j]]
+        Ju = Gs @ _reduced_block(B, zmap, nu)
+        for i in range(nz):
+            for j in range(nu):
+                J[i, j] = Ju[i, j] + E[i, j]
+        Jth = Gs @ Rr
+    else:
+        qw = np.empty((N, 4))
+        X = np.empty((N, 3))
+        rfull = np.empty(6 * N)
+        zp = z.copy()
+        central = mode == INC_CENTRAL
+        if not central:
+            residual(z, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, qw, X, rfull)
         for j in range(nu):
-            Ju[i, j] = J[i, j] - E[i, j]
-    Jth = Ju @ Mr
+            c = zmap[j]
+            if central:
+                zp[c] = z[c] + FD_H
+                residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, qw, X,
+                         rfull)
+                zp[c] = z[c] - FD_H
+                residual(zp, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, qw, X,
+                         rfull)
+                zp[c] = z[c]
+                for i in range(nz):
+                    J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / (2.0 * FD_H)
+            else:
+                zp[c] = z[c] + FD_H_FORWARD
+                residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, qw, X,
+                         rfull)
+                zp[c] = z[c]
+                for i in range(nz):
+                    J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / FD_H_FORWARD
+        # dR/dth^k = (J_u - E) dexp(u)^-1 Rot(u)
+        ARt = np.empty((N - 1, 3, 3))
+        for m in range(N - 1):
+            ARt[m] = A[m] @ Rt[m]
+        Ju = np.empty((nz, nu))
+        for i in range(nz):
+            for j in range(nu):
+                Ju[i, j] = J[i, j] - E[i, j]
+        Jth = Ju @ _reduced_block(ARt, zmap, nu)
+    # dR/ddt at fixed physical unknowns
+    cfull = np.empty(6 * N)
+    for n in range(N):
+        for k in range(3):
+            cfull[3 * n + k] = -g * V[n, k] / dL
+        if n == 0:
+            for k in range(3):
+                cfull[3 * N + k] = -g * Om[0, k]
+        else:
+            for k in range(3):
+                u[k] = zf[3 * (n - 1) + k]
+                w[k] = Om[n, k]
+            di = dexp_inv(u, w)
+            for k in range(3):
+                cfull[3 * N + 3 * n + k] = -g * di[k]
+    c_dt = np.empty(nz)
+    for i in range(nz):
+        c_dt[i] = cfull[rmap[i]]
     c_s = np.zeros(nz)
     if want_p:
         # R is affine in the strength: a unit central difference is exact
+        qw = np.empty((N, 4))
+        X = np.empty((N, 3))
+        rfull = np.empty(6 * N)
         pp = par + dpar
         pm = par - dpar
-        residual(z, rp, qk, xk, xkm1, uk, coef, pp, flags, idm, idm, scale, q, X, rfull)
-        residual(z, rm, qk, xk, xkm1, uk, coef, pm, flags, idm, idm, scale, q, X, rfull)
+        residual(z, rp, qk, xk, xkm1, uk, coef, pp, flags, idm, idm, scale, qw, X, rfull)
+        residual(z, rm, qk, xk, xkm1, uk, coef, pm, flags, idm, idm, scale, qw, X, rfull)
         for i in range(nz):
             c_s[i] = 0.5 * (rp[rmap[i]] - rm[rmap[i]])
     return J, Jth, c_dt, c_s
@@ -369,7 +482,7 @@ def tangent_step(
     du: np.ndarray,
     ddt: np.ndarray,
     ds: np.ndarray,
-    central: bool = True,
+    mode: int = INC_ANALYTIC,
 ) -> None:
     """Propagate the batched tangents over one converged step, in place.
 
@@ -377,7 +490,7 @@ def tangent_step(
     ``dxm1`` (npos, nd): position perturbations at k and k-1; ``du`` (nu,
     nd): perturbation of the increments ``u^k``; ``ddt``, ``ds`` (nd,): the
     step-size and strength perturbation of each direction. On return they
-    hold the perturbations at step k+1. ``central``: see :func:`step_matrices`.
+    hold the perturbations at step k+1. ``mode``: see :func:`step_matrices`.
     """
     N = qk.shape[0]
     nz = zmap.shape[0]
@@ -390,7 +503,7 @@ def tangent_step(
         if ds[d] != 0.0:
             want_p = True
     J, Jth, c_dt, c_s = step_matrices(zf, qk, xk, xkm1, uk, coef, par, dpar, flags,
-                                      zmap, rmap, scale, want_p, central)
+                                      zmap, rmap, scale, want_p, mode)
     rhs = Jth @ dth
     for i in range(npos):
         for d in range(nd):
