@@ -27,8 +27,8 @@ with ``dth^k`` the spatial rotation vectors perturbing the frames ``q^k``
 - ``dR/ddt`` at fixed physical unknowns: ``-g V/dL`` and ``-g
   dexp_inv(u, Omega)``;
 - ``dR/ds``: ``R`` is affine in the actuation strength (follower force and
-  squirming velocity are linear in it), so a central difference with a unit
-  step is exact up to round-off.
+  squirming velocity are linear in it), so ``dR/ds`` is ``-g dt D`` times
+  the velocities of the actuation alone at the strength step.
 
 ``dR/dz`` is factored once per step and all directions (the monodromy
 columns, ``d/dT`` through ``ddt = dT/steps``, ``d/ds``) are solved together.
@@ -51,7 +51,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .bdf2_jacobian import _load_jacobian
 from .bdf2_residual import (
     C_A1,
     C_A2,
@@ -63,10 +62,10 @@ from .bdf2_residual import (
     unpack_loads,
     velocities,
 )
-from .effects import F_HYDRO, HYD_RPY, P_A, P_DL, P_ETA
+from .effects import F_HYDRO, HYD_RPY, P_A, P_B1, P_DL, P_ETA, P_F, P_KB, P_KT
+from .frame_jacobian import velocity_frame_jacobian
 from .geometry import positions, tangents
 from .quaternion import dexp_inv, dexp_matrix, qexp, qrotmat
-from .frame_jacobian import velocity_frame_jacobian
 from .rpy import local_mobility, rpy_mobility
 
 #: Central-difference step (radians) of the increment columns of dR/dz:
@@ -151,25 +150,22 @@ def load_columns(
 
     ``R`` is affine in the loads at fixed frames: ``dR/dz_load = -g dt D M
     G_load`` with the mobility ``M`` at the step's positions, ``D =
-    blockdiag(I/dL, dexp_inv(u_n))`` and ``G_load`` the load incidence of
-    :func:`~.bdf2_jacobian._load_jacobian` (only its load columns are
-    multiplied, not the whole ``6N x 6N`` matrix).
+    blockdiag(I/dL, dexp_inv(u_n))`` and ``G_load`` the (sparse) load
+    incidence of :mod:`.forces` (the load columns of
+    :func:`~.bdf2_jacobian._load_jacobian`), applied column by column.
     """
     N = qk.shape[0]
     q = np.empty((N, 4))
     frames_at(zf, qk, q)
     t = tangents(q)
-    Lam, _, _ = unpack_loads(zf, N)
     M = dense_mobility(positions(t, par[P_DL]), par, flags)
-    return _load_columns(zf, q, t, Lam, coef, par, zmap, rmap, scale, nu, M)
+    return _load_columns(zf, t, coef, par, zmap, rmap, scale, nu, M)
 
 
 @njit(cache=True)
 def _load_columns(
     zf: np.ndarray,
-    q: np.ndarray,
     t: np.ndarray,
-    Lam: np.ndarray,
     coef: np.ndarray,
     par: np.ndarray,
     zmap: np.ndarray,
@@ -178,19 +174,42 @@ def _load_columns(
     nu: int,
     M: np.ndarray,
 ) -> np.ndarray:
-    """:func:`load_columns` at the step's frames ``q``, tangents ``t``, joint
-    forces ``Lam`` and dense mobility ``M``."""
-    N = q.shape[0]
+    """:func:`load_columns` at the step's tangents ``t`` and dense mobility ``M``."""
+    N = t.shape[0]
     nz = zmap.shape[0]
     nl = nz - nu
     dL = par[P_DL]
     gdt = coef[C_G] * coef[C_DT]
-    G = _load_jacobian(q, t, Lam, par, scale[3 * (N - 1)], scale[6 * N - 1])
-    Gl = np.empty((6 * N, nl))
-    for i in range(6 * N):
-        for j in range(nl):
-            Gl[i, j] = G[i, zmap[nu + j]]
-    MG = M @ Gl
+    # M times the load incidence, column by column: each load touches at
+    # most two segments (O(N) per column instead of a dense 6N x 6N product).
+    # Lam_j (units sF): F_j += e_k, F_{j+1} -= e_k, T_n += dL/2 t_n x e_k
+    # (n = j, j+1); Fc: F_0 += e_k; Tc (units sT): T_0 += e_k.
+    sF, sT = scale[3 * (N - 1)], scale[6 * N - 1]
+    h = 0.5 * dL
+    oL = 3 * (N - 1)
+    RT = 3 * N
+    MG = np.empty((6 * N, nl))
+    for jj in range(nl):
+        col = zmap[nu + jj]
+        if col < 6 * (N - 1):
+            j, k = (col - oL) // 3, (col - oL) % 3
+            k1, k2 = (k + 1) % 3, (k + 2) % 3
+            # t x e_k has components: [k1] = t[k2], [k2] = -t[k1]
+            a1, a2 = h * t[j, k2], -h * t[j, k1]
+            b1, b2 = h * t[j + 1, k2], -h * t[j + 1, k1]
+            for i in range(6 * N):
+                MG[i, jj] = sF * (M[i, 3 * j + k] - M[i, 3 * j + 3 + k]
+                                  + a1 * M[i, RT + 3 * j + k1] + a2 * M[i, RT + 3 * j + k2]
+                                  + b1 * M[i, RT + 3 * j + 3 + k1]
+                                  + b2 * M[i, RT + 3 * j + 3 + k2])
+        elif col < 6 * N - 3:
+            k = col - 6 * (N - 1)
+            for i in range(6 * N):
+                MG[i, jj] = sF * M[i, k]
+        else:
+            k = col - (6 * N - 3)
+            for i in range(6 * N):
+                MG[i, jj] = sT * M[i, RT + k]
     out = np.empty((nz, nl))
     u = np.zeros(3)
     for i in range(nz):
@@ -224,53 +243,68 @@ def residual_frame_jacobian(
     par: np.ndarray,
     flags: np.ndarray,
     M: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    nu: int,
 ) -> np.ndarray:
-    """``dR/dth`` (6N, 3(N-1)): the full scaled residual rows against spatial
-    rotations of the new frames 1..N-1 at fixed loads, exact.
+    """``dR/dth`` (nz, nu): the selected scaled residual rows ``rmap`` against
+    spatial rotations of the new frames (components ``zmap[:nu]``, segments
+    1..N-1) at fixed loads, exact.
 
     Position rows ``(dX_n - g dt dV_n)/dL``, orientation rows ``-g dt
     dexp_inv(u_n) dOmega_n`` (``-g dt dOmega_0`` for the clamped segment);
     ``dX`` by the robot arm, ``d[V; Omega]`` by
     :func:`.frame_jacobian.velocity_frame_jacobian` (``M``: the dense
-    mobility at ``X``). The explicit ``u`` of the orientation rows is not
-    part of it (``E`` in :func:`step_matrices`).
+    mobility at ``X``), evaluated on the selected rows and components only
+    (``dexp_inv(u_n)`` is restricted to the selected components, exact
+    because the block is invariant). The explicit ``u`` of the orientation
+    rows is not part of it (``E`` in :func:`step_matrices`).
     """
     N = q.shape[0]
+    nz = rmap.shape[0]
     dL = par[P_DL]
     gdt = coef[C_G] * coef[C_DT]
     Lam, Fc, Tc = unpack_loads(zf, N)
-    W = velocity_frame_jacobian(q, t, X, Lam, Fc, Tc, par, flags, M)
-    nc = 3 * (N - 1)
-    G = np.empty((6 * N, nc))
-    for i in range(3 * N):
-        for j in range(nc):
-            G[i, j] = -gdt / dL * W[i, j]
-    # robot arm: dX_n/dth_m / dL = w_nm C_m, w = 1 (n > m), 1/2 (n = m)
-    for m in range(1, N):
-        t0, t1, t2 = t[m, 0], t[m, 1], t[m, 2]
-        o = 3 * (m - 1)
-        for n in range(m, N):
-            w = 0.5 if n == m else 1.0
-            G[3 * n, o + 1] += w * t2
-            G[3 * n, o + 2] -= w * t1
-            G[3 * n + 1, o] -= w * t2
-            G[3 * n + 1, o + 2] += w * t0
-            G[3 * n + 2, o] += w * t1
-            G[3 * n + 2, o + 1] -= w * t0
-    R = 3 * N
-    for k in range(3):
-        for j in range(nc):
-            G[R + k, j] = -gdt * W[R + k, j]
+    rmask = np.zeros(6 * N, dtype=np.bool_)
+    for i in range(nz):
+        rmask[rmap[i]] = True
+    cmask = np.zeros(3, dtype=np.bool_)
+    for j in range(nu):
+        cmask[zmap[j] % 3] = True
+    W = velocity_frame_jacobian(q, t, X, Lam, Fc, Tc, par, flags, M, rmask, cmask)
+    G = np.empty((nz, nu))
     u = np.empty(3)
-    for n in range(1, N):
-        for k in range(3):
-            u[k] = zf[3 * (n - 1) + k]
-        A = dexp_matrix(u, True)
-        for k in range(3):
-            for j in range(nc):
-                G[R + 3 * n + k, j] = -gdt * (A[k, 0] * W[R + 3 * n, j]
-                                              + A[k, 1] * W[R + 3 * n + 1, j]
-                                              + A[k, 2] * W[R + 3 * n + 2, j])
+    R = 3 * N
+    for i in range(nz):
+        r = rmap[i]
+        if r < R:
+            n, k = r // 3, r % 3
+            for j in range(nu):
+                G[i, j] = -gdt / dL * W[r, zmap[j]]
+                # robot arm: dX_n/dth_m / dL = w_nm C_m, w = 1 (n > m), 1/2 (n = m)
+                m = zmap[j] // 3 + 1
+                c = zmap[j] % 3
+                if m <= n and k != c:
+                    w = 0.5 if n == m else 1.0
+                    # C_m = -[t_m]x: C[k, c] = eps_kcl t_l
+                    l_ = 3 - k - c
+                    sg = 1.0 if (k - c) % 3 == 2 else -1.0  # eps_{k c l} = +1 iff (k, c, l) cyclic
+                    G[i, j] += w * sg * t[m, l_]
+        else:
+            n, k = (r - R) // 3, (r - R) % 3
+            if n == 0:
+                for j in range(nu):
+                    G[i, j] = -gdt * W[r, zmap[j]]
+            else:
+                for kk in range(3):
+                    u[kk] = zf[3 * (n - 1) + kk]
+                A = dexp_matrix(u, True)
+                for j in range(nu):
+                    acc = 0.0
+                    for kk in range(3):
+                        if rmask[R + 3 * n + kk]:
+                            acc += A[k, kk] * W[R + 3 * n + kk, zmap[j]]
+                    G[i, j] = -gdt * acc
     return G
 
 
@@ -343,7 +377,7 @@ def step_matrices(
     Lam, Fc, Tc = unpack_loads(zf, N)
     Mob = dense_mobility(Xn, par, flags)
     J = np.empty((nz, nz))
-    Jl = _load_columns(zf, q, t, Lam, coef, par, zmap, rmap, scale, nu, Mob)
+    Jl = _load_columns(zf, t, coef, par, zmap, rmap, scale, nu, Mob)
     for i in range(nz):
         for j in range(nz - nu):
             J[i, nu + j] = Jl[i, j]
@@ -383,11 +417,7 @@ def step_matrices(
     if mode == INC_ANALYTIC:
         # R depends on u through the new frames (th = dexp(u) du) and
         # explicitly (E): J_u = G B + E, and dR/dth^k = G Rot(u)
-        G = residual_frame_jacobian(zf, q, t, Xn, coef, par, flags, Mob)
-        Gs = np.empty((nz, nu))
-        for i in range(nz):
-            for j in range(nu):
-                Gs[i, j] = G[rmap[i], zmap[j]]
+        Gs = residual_frame_jacobian(zf, q, t, Xn, coef, par, flags, Mob, zmap, rmap, nu)
         Ju = Gs @ _reduced_block(B, zmap, nu)
         for i in range(nz):
             for j in range(nu):
@@ -449,16 +479,29 @@ def step_matrices(
         c_dt[i] = cfull[rmap[i]]
     c_s = np.zeros(nz)
     if want_p:
-        # R is affine in the strength: a unit central difference is exact
-        qw = np.empty((N, 4))
-        X = np.empty((N, 3))
-        rfull = np.empty(6 * N)
-        pp = par + dpar
-        pm = par - dpar
-        residual(z, rp, qk, xk, xkm1, uk, coef, pp, flags, idm, idm, scale, qw, X, rfull)
-        residual(z, rm, qk, xk, xkm1, uk, coef, pm, flags, idm, idm, scale, qw, X, rfull)
+        # R is affine in the strength, through the active loads only: dR/ds
+        # = -g dt D d[V; Omega]/ds, the velocities of the actuation alone
+        # (no elasticity, no constraint loads) at the strength step dpar
+        pa = par.copy()
+        pa[P_KB] = 0.0
+        pa[P_KT] = 0.0
+        pa[P_F] = dpar[P_F]
+        pa[P_B1] = dpar[P_B1]
+        z3 = np.zeros(3)
+        Vs, Os = velocities(q, t, Xn, np.zeros((N - 1, 3)), z3, z3, pa, flags)
         for i in range(nz):
-            c_s[i] = 0.5 * (rp[rmap[i]] - rm[rmap[i]])
+            r = rmap[i]
+            if r < 3 * N:
+                c_s[i] = -gdt / dL * Vs[r // 3, r % 3]
+            else:
+                n, k = (r - 3 * N) // 3, (r - 3 * N) % 3
+                if n == 0:
+                    c_s[i] = -gdt * Os[0, k]
+                else:
+                    for kk in range(3):
+                        u[kk] = zf[3 * (n - 1) + kk]
+                        w[kk] = Os[n, kk]
+                    c_s[i] = -gdt * dexp_inv(u, w)[k]
     return J, Jth, c_dt, c_s
 
 

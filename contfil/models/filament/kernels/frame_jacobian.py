@@ -193,25 +193,33 @@ def squirmer_velocity_jacobian(
 
 
 @njit(cache=True)
-def _suffix_positions(K: np.ndarray, t: np.ndarray, dL: float, W: np.ndarray) -> None:
-    """``W += K dX/dth`` (robot arm, suffix sums); K (rows, 3N), W (rows, 3(N-1))."""
-    rows = K.shape[0]
+def _suffix_positions(
+    K: np.ndarray, t: np.ndarray, dL: float, W: np.ndarray, rows: np.ndarray, cmask: np.ndarray
+) -> None:
+    """``W += K dX/dth`` (robot arm, suffix sums) on the rows ``rows`` and
+    the rotation components ``cmask``; K (rows, 3N), W (rows, 3(N-1))."""
     N = t.shape[0]
-    acc = np.zeros((rows, 3))  # sum_{n > m} K_n
-    S = np.empty((rows, 3))
+    nr = rows.shape[0]
+    acc = np.zeros((nr, 3))  # sum_{n > m} K_n
+    S = np.empty((nr, 3))
     for m in range(N - 1, 0, -1):
-        for i in range(rows):
+        for ii in range(nr):
+            i = rows[ii]
             for k in range(3):
-                S[i, k] = dL * (acc[i, k] + 0.5 * K[i, 3 * m + k])
-                acc[i, k] += K[i, 3 * m + k]
+                S[ii, k] = dL * (acc[ii, k] + 0.5 * K[i, 3 * m + k])
+                acc[ii, k] += K[i, 3 * m + k]
         # S C_m with C_m = -[t_m]x, rows (0, t2, -t1), (-t2, 0, t0), (t1, -t0, 0)
         t0, t1, t2 = t[m, 0], t[m, 1], t[m, 2]
         o = 3 * (m - 1)
-        for i in range(rows):
-            s0, s1, s2 = S[i, 0], S[i, 1], S[i, 2]
-            W[i, o] += -s1 * t2 + s2 * t1
-            W[i, o + 1] += s0 * t2 - s2 * t0
-            W[i, o + 2] += -s0 * t1 + s1 * t0
+        for ii in range(nr):
+            i = rows[ii]
+            s0, s1, s2 = S[ii, 0], S[ii, 1], S[ii, 2]
+            if cmask[0]:
+                W[i, o] += -s1 * t2 + s2 * t1
+            if cmask[1]:
+                W[i, o + 1] += s0 * t2 - s2 * t0
+            if cmask[2]:
+                W[i, o + 2] += -s0 * t1 + s1 * t0
 
 
 @njit(cache=True)
@@ -225,17 +233,32 @@ def velocity_frame_jacobian(
     par: np.ndarray,
     flags: np.ndarray,
     M: np.ndarray,
+    rmask: np.ndarray,
+    cmask: np.ndarray,
 ) -> np.ndarray:
     """``W = d[V; Omega]/dth`` (6N, 3(N-1)) at fixed loads (module docstring).
 
     Columns: spatial rotations of frames 1..N-1 (the increment order of the
     step unknowns). ``M`` is the dense (6N, 6N) mobility at ``X`` (RPY or
     local), the one :func:`.bdf2_residual.velocities` applies matrix-free.
+    Only the rows with ``rmask`` (6N,) and the rotation components with
+    ``cmask`` (3,) are computed (the rest is zero): a planar block needs a
+    sixth of the entries.
     """
     N = q.shape[0]
     dL = par[P_DL]
     hdl = 0.5 * dL
     W = np.zeros((6 * N, 3 * (N - 1)))
+    nr = 0
+    for i in range(6 * N):
+        if rmask[i]:
+            nr += 1
+    rows = np.empty(nr, dtype=np.int64)
+    nr = 0
+    for i in range(6 * N):
+        if rmask[i]:
+            rows[nr] = i
+            nr += 1
     TE = elastic_torques(q, dL, par[P_KB], par[P_KT])
     F, T = segment_loads(t, Lam, Fc, Tc, TE, active_force(par, flags, t), dL)
     # positions: mobility (RPY) and squirming
@@ -250,7 +273,7 @@ def velocity_frame_jacobian(
         for i in range(3 * N):
             for j in range(3 * N):
                 K[i, j] += KX[i, j]
-    _suffix_positions(K, t, dL, W)
+    _suffix_positions(K, t, dL, W, rows, cmask)
     # local load changes: dF (rows 3m..), dT (rows 3N + 3n, n = m-1..m+1)
     Da, Db = elastic_moment_jacobian(q, dL, par[P_KB], par[P_KT])
     fol = flags[F_ACT] == ACT_FOLLOWER
@@ -289,18 +312,20 @@ def velocity_frame_jacobian(
         o = 3 * (m - 1)
         nlo = m - 1
         nhi = m + 1 if m < N - 1 else m
-        for i in range(6 * N):
+        for ii in range(nr):
+            i = rows[ii]
             for c in range(3):
+                if not cmask[c]:
+                    continue
                 s = 0.0
-                for k in range(3):
-                    s += M[i, 3 * m + k] * dF[k, c]
+                if fol:
+                    for k in range(3):
+                        s += M[i, 3 * m + k] * dF[k, c]
                 for n in range(nlo, nhi + 1):
                     for k in range(3):
                         s += M[i, 3 * N + 3 * n + k] * dT[n - m + 1, k, c]
                 W[i, o + c] += s
-        if squirm:
-            for i in range(3 * N):
-                for c in range(3):
+                if squirm and i < 3 * N:
                     W[i, o + c] += (Kt[i, 3 * m] * C[0, c] + Kt[i, 3 * m + 1] * C[1, c]
                                     + Kt[i, 3 * m + 2] * C[2, c])
     return W
