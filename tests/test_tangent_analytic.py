@@ -136,3 +136,23 @@ def test_sweep_on_an_overlapping_bent_filament() -> None:
     assert np.linalg.norm(fd - ex.jvp @ v) < 1e-7 * np.linalg.norm(ex.jvp @ v)
     with pytest.raises(ValueError, match="increments must be"):
         flow_tangent(m, u, p, T, steps=steps, increments="exact")
+
+
+@pytest.mark.parametrize("size", [1e-3, 0.1, 0.2499, 0.2501, 1.0, 3.0])
+def test_dexp_inv_derivative_matches_central_differences(size: float) -> None:
+    # both sides of the series threshold (0.25) of dexp_inv
+    from contfil.models.filament.kernels.quaternion import dexp_inv, dexp_inv_du
+
+    rng = np.random.default_rng(int(1000 * size))
+    u = rng.standard_normal(3)
+    u *= size / np.linalg.norm(u)
+    v = rng.standard_normal(3)
+    h = 1e-6
+    fd = np.column_stack([(dexp_inv(u + h * e, v) - dexp_inv(u - h * e, v)) / (2 * h)
+                          for e in np.eye(3)])
+    D = dexp_inv_du(u, v)
+    assert np.max(np.abs(D - fd)) < 1e-8 * np.max(np.abs(D))
+    # at u = 0: dexp_inv(u, v) = v - u x v / 2 + O(u^2), so the derivative is [v]x / 2
+    D0 = dexp_inv_du(np.zeros(3), v)
+    assert np.allclose(D0, 0.5 * np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]],
+                                           [-v[1], v[0], 0]]), rtol=0, atol=1e-15)

@@ -11,13 +11,17 @@ the actuation strength ``s``. The result is the derivative of the discrete
 map, so shooting Newton on it converges quadratically (up to the Broyden
 tolerance of the steps).
 
-Cost: per step one approximate Jacobian, ``2 n_u`` residuals for the
-increment columns (``n_u = N-1`` planar, ``3(N-1)`` in 3D) and one LU of the
-``3N`` (planar) or ``6N`` unknowns; independent of the number of directions
-(measured in ``benchmarks/orbit_cost.py``). Directions normal to the plane
-at a planar state of a 3D model (the out-of-plane Floquet block of a
-beating orbit) are propagated along the planar stepper's flow through the
-out-of-plane block alone: ``2(N-1)`` increment columns, ``3N`` unknowns.
+Cost: per step the exact step Jacobian (load columns and increment columns
+analytic, ``O(N^2)``: RPY position derivative, frame derivatives of the
+elastic, constraint and active loads and of the squirming flow) and one LU
+of the ``3N`` (planar) or ``6N`` unknowns, solved for all directions
+together (measured in ``benchmarks/orbit_cost.py``: a planar sweep of the
+tip SF orbit costs about 2.5 flows). ``increments="fd"`` keeps the previous
+path, ``2 n_u`` residuals per step for the increment columns (``n_u = N-1``
+planar, ``3(N-1)`` in 3D), ``O(N^3)``, for checking. Directions normal to
+the plane at a planar state of a 3D model (the out-of-plane Floquet block of
+a beating orbit) are propagated along the planar stepper's flow through the
+out-of-plane block alone (``2(N-1)`` increments, ``3N`` unknowns).
 Optionally the states at ``k`` equally spaced times are returned
 (``samples``), so period means need no extra flows.
 """

@@ -13,15 +13,20 @@ with ``dth^k`` the spatial rotation vectors perturbing the frames ``q^k``
 
 - ``dR/dz``: the load columns are exact (:func:`load_columns`: ``R`` is
   affine in the loads at fixed frames, the mobility at the step's positions
-  and ``dexp_inv(u, .)`` are exactly the ones of the residual); the
-  ``u`` columns (frames move: mobility, positions, squirming, elastic
-  torques all change) are central differences of the compiled residual,
-  step :data:`FD_H` (error ~1e-10 relative, measured in the tests);
+  and ``dexp_inv(u, .)`` are exactly the ones of the residual). The ``u``
+  columns (frames move: mobility, positions, squirming, elastic and
+  constraint torques, follower forces all change) are exact too:
+  ``J_u = G dexp(u) + E`` with ``G = dR/dth`` the derivative in spatial
+  rotations of the new frames (:func:`residual_frame_jacobian`, built on
+  :mod:`.frame_jacobian` and :mod:`.rpy_derivative`, ``O(N^2)`` per step)
+  and ``E_n = I - g dt d_u dexp_inv(u_n, Omega_n)`` the explicit ``u`` of
+  the orientation rows. The previous path, central (or forward)
+  differences of the compiled residual (step :data:`FD_H`, error ~1e-10
+  relative, ``O(N^3)`` per step), stays available as ``mode`` for checking;
 - ``dR/dth^k``: ``q_m^{k+1} = exp(u_m) q_m^k``, so a perturbation ``dth``
-  of ``q_m^k`` moves the new frame by ``Rot(u_m) dth``, the same as the
-  increment change ``du' = dexp(u_m)^{-1} Rot(u_m) dth`` except for the
-  explicit ``u`` of the orientation rows: ``dR/dth = (dR/du - E) du'/dth``,
-  ``E_n = I - g dt d_u dexp_inv(u_n, Omega_n)``;
+  of ``q_m^k`` rotates the new frame by ``Rot(u_m) dth`` at fixed ``u``:
+  ``dR/dth^k = G Rot(u)`` (with difference columns: ``(J_u - E)
+  dexp(u)^{-1} Rot(u)``, the same thing);
 - ``dR/dx^k = -a1/dL``, ``dR/dx^{k-1} = -a2/dL`` (position rows),
   ``dR/du^k = -b1`` (orientation rows): exact, linear;
 - ``dR/ddt`` at fixed physical unknowns: ``-g V/dL`` and ``-g
@@ -65,7 +70,7 @@ from .bdf2_residual import (
 from .effects import F_HYDRO, HYD_RPY, P_A, P_B1, P_DL, P_ETA, P_F, P_KB, P_KT
 from .frame_jacobian import velocity_frame_jacobian
 from .geometry import positions, tangents
-from .quaternion import dexp_inv, dexp_matrix, qexp, qrotmat
+from .quaternion import dexp_inv, dexp_inv_du, dexp_matrix, qexp, qrotmat
 from .rpy import local_mobility, rpy_mobility
 
 #: Central-difference step (radians) of the increment columns of dR/dz:
@@ -74,8 +79,6 @@ FD_H = 5e-6
 #: Forward-difference step (the cheaper option, one residual per column):
 #: ~sqrt(eps), error ~1e-8 relative.
 FD_H_FORWARD = 2e-8
-#: Step of the central difference of dexp_inv in u (a 3-vector closed form).
-FD_H_DEXP = 1e-5
 #: How the increment columns of dR/dz are formed (``mode`` of :func:`step_matrices`):
 #: exactly, or by central / forward differences of the residual (the old path, for checks).
 INC_ANALYTIC, INC_CENTRAL, INC_FORWARD = 0, 1, 2
@@ -385,28 +388,23 @@ def step_matrices(
     rinv = -np.ones(6 * N, dtype=np.int64)
     for i in range(nz):
         rinv[rmap[i]] = i
-    # explicit u dependence E of the orientation rows (I - g dt d_u dexp_inv(u, Omega)
-    # at fixed Omega; a closed 3-vector form, central differences ~1e-11)
+    # explicit u dependence E of the orientation rows: I - g dt d_u dexp_inv(u, Omega)
+    # at fixed Omega (restricted to the selected components of each segment)
     E = np.zeros((nz, nu))
     u = np.empty(3)
     w = np.empty(3)
-    up = np.empty(3)
     for j in range(nu):
         m = zmap[j] // 3  # segment m + 1
         c = zmap[j] % 3
         for k in range(3):
             u[k] = zf[3 * m + k]
             w[k] = Om[m + 1, k]
-            up[k] = u[k]
-        up[c] = u[c] + FD_H_DEXP
-        dp_ = dexp_inv(up, w)
-        up[c] = u[c] - FD_H_DEXP
-        dm_ = dexp_inv(up, w)
+        D = dexp_inv_du(u, w)
         for r in range(3):
             ii = rinv[3 * N + 3 * (m + 1) + r]
             if ii < 0:
                 continue
-            v = -gdt * (dp_[r] - dm_[r]) / (2.0 * FD_H_DEXP)
+            v = -gdt * D[r, c]
             if r == c:
                 v += 1.0
             E[ii, j] = v
