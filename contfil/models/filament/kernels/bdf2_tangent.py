@@ -330,7 +330,7 @@ def dpositions(t: np.ndarray, dth: np.ndarray, dL: float) -> np.ndarray:
 
 
 @njit(cache=True)
-def step_matrices(
+def _step_system(
     zf: np.ndarray,
     qk: np.ndarray,
     xk: np.ndarray,
@@ -345,20 +345,9 @@ def step_matrices(
     scale: np.ndarray,
     want_p: bool,
     mode: int = INC_ANALYTIC,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(J, Jth, c_dt, c_s)`` of a converged step (module docstring).
-
-    ``zf`` is the step's physical full unknown vector; ``zmap``/``rmap``
-    (full indices, increments first / position rows first) select the
-    tangent system, which may differ from the stepper's own (e.g. the
-    out-of-plane block along a planar orbit). ``J = dR/dz`` in the scaled
-    selected unknowns (nz, nz), ``Jth = dR/dth^k`` (nz, nu), ``c_dt =
-    dR/ddt`` and ``c_s = dR/ds`` (nz,; zero unless ``want_p``), ``dpar = d
-    par / ds``. ``mode``: the increment columns exactly
-    (:data:`INC_ANALYTIC`, :func:`residual_frame_jacobian`) or by central
-    (:data:`INC_CENTRAL`, ~1e-10 relative error) or forward
-    (:data:`INC_FORWARD`, ~1e-8) differences of the residual (for checking).
-    """
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`step_matrices` plus what the propagation reuses: the reduced
+    ``dexp(u)`` and ``Rot(u)`` blocks and the new tangents."""
     N = qk.shape[0]
     nz = zmap.shape[0]
     nu, _ = reduced_counts(zmap, rmap, N)
@@ -410,13 +399,14 @@ def step_matrices(
             E[ii, j] = v
     B, A, Rt = _segment_blocks(zf, N)
     Rr = _reduced_block(Rt, zmap, nu)
+    Br = _reduced_block(B, zmap, nu)
     rp = np.empty(6 * N)
     rm = np.empty(6 * N)
     if mode == INC_ANALYTIC:
         # R depends on u through the new frames (th = dexp(u) du) and
         # explicitly (E): J_u = G B + E, and dR/dth^k = G Rot(u)
         Gs = residual_frame_jacobian(zf, q, t, Xn, coef, par, flags, Mob, zmap, rmap, nu)
-        Ju = Gs @ _reduced_block(B, zmap, nu)
+        Ju = Gs @ Br
         for i in range(nz):
             for j in range(nu):
                 J[i, j] = Ju[i, j] + E[i, j]
@@ -500,6 +490,41 @@ def step_matrices(
                         u[kk] = zf[3 * (n - 1) + kk]
                         w[kk] = Os[n, kk]
                     c_s[i] = -gdt * dexp_inv(u, w)[k]
+    return J, Jth, c_dt, c_s, Br, Rr, t
+
+
+@njit(cache=True)
+def step_matrices(
+    zf: np.ndarray,
+    qk: np.ndarray,
+    xk: np.ndarray,
+    xkm1: np.ndarray,
+    uk: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    dpar: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    want_p: bool,
+    mode: int = INC_ANALYTIC,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(J, Jth, c_dt, c_s)`` of a converged step (module docstring).
+
+    ``zf`` is the step's physical full unknown vector; ``zmap``/``rmap``
+    (full indices, increments first / position rows first) select the
+    tangent system, which may differ from the stepper's own (e.g. the
+    out-of-plane block along a planar orbit). ``J = dR/dz`` in the scaled
+    selected unknowns (nz, nz), ``Jth = dR/dth^k`` (nz, nu), ``c_dt =
+    dR/ddt`` and ``c_s = dR/ds`` (nz,; zero unless ``want_p``), ``dpar = d
+    par / ds``. ``mode``: the increment columns exactly
+    (:data:`INC_ANALYTIC`, :func:`residual_frame_jacobian`) or by central
+    (:data:`INC_CENTRAL`, ~1e-10 relative error) or forward
+    (:data:`INC_FORWARD`, ~1e-8) differences of the residual (for checking).
+    """
+    J, Jth, c_dt, c_s, _, _, _ = _step_system(zf, qk, xk, xkm1, uk, coef, par, dpar, flags,
+                                              zmap, rmap, scale, want_p, mode)
     return J, Jth, c_dt, c_s
 
 
@@ -543,8 +568,8 @@ def tangent_step(
     for d in range(nd):
         if ds[d] != 0.0:
             want_p = True
-    J, Jth, c_dt, c_s = step_matrices(zf, qk, xk, xkm1, uk, coef, par, dpar, flags,
-                                      zmap, rmap, scale, want_p, mode)
+    J, Jth, c_dt, c_s, Br, Rr, t = _step_system(zf, qk, xk, xkm1, uk, coef, par, dpar, flags,
+                                                zmap, rmap, scale, want_p, mode)
     rhs = Jth @ dth
     for i in range(npos):
         for d in range(nd):
@@ -562,14 +587,8 @@ def tangent_step(
             rhs[i, d] += c_dt[i] * ddt[d] + c_s[i] * ds[d]
     dz = -np.linalg.solve(J, rhs)
     # new frames: dth' = dexp(u) du' + Rot(u) dth
-    B, _, Rt = _segment_blocks(zf, N)
-    Br = _reduced_block(B, zmap, nu)
-    Rr = _reduced_block(Rt, zmap, nu)
     dun = dz[:nu, :].copy()  # increments are unscaled unknowns
     dthn = Br @ dun + Rr @ dth
-    q = np.empty((N, 4))
-    frames_at(zf, qk, q)
-    t = tangents(q)
     full = np.zeros((N, 3))
     for d in range(nd):
         for j in range(nu):

@@ -47,7 +47,7 @@ from .effects import (
 )
 from .elastic import _qm, elastic_torques
 from .forces import segment_loads
-from .rpy_derivative import rpy_apply_jacobian
+from .rpy_derivative import rpy_apply_jacobian_masked
 
 
 @njit(cache=True)
@@ -262,8 +262,17 @@ def velocity_frame_jacobian(
     TE = elastic_torques(q, dL, par[P_KB], par[P_KT])
     F, T = segment_loads(t, Lam, Fc, Tc, TE, active_force(par, flags, t), dL)
     # positions: mobility (RPY) and squirming
+    # position components that move at all under the selected rotations
+    # (C_m[k, c] != 0 for some m, c): the other columns of K are never used
+    xmask = np.zeros(3, dtype=np.bool_)
+    for m in range(1, N):
+        for c in range(3):
+            if cmask[c]:
+                for k in range(3):
+                    if k != c and t[m, 3 - k - c] != 0.0:
+                        xmask[k] = True
     if flags[F_HYDRO] == HYD_RPY:
-        K = rpy_apply_jacobian(X, par[P_A], par[P_ETA], F, T)
+        K = rpy_apply_jacobian_masked(X, par[P_A], par[P_ETA], F, T, rmask, xmask)
     else:
         K = np.zeros((6 * N, 3 * N))
     squirm = flags[F_ACT] == ACT_SQUIRMER and par[P_B1] != 0.0

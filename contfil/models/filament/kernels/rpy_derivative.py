@@ -56,15 +56,20 @@ def pair_coeff_derivs(r: float, a: float, eta: float) -> tuple[float, float, flo
 @njit(cache=True)
 def _add_sym_block(
     K: np.ndarray, row: int, ci: int, cj: int, h: np.ndarray, v: np.ndarray,
-    A: float, dA: float, B: float, dB: float, r: float,
+    A: float, dA: float, B: float, dB: float, r: float, rmask: np.ndarray, xmask: np.ndarray,
 ) -> None:
-    """``K[row, ci] += D``, ``K[row, cj] -= D`` with ``D = d/dr (A v + B rh (rh.v))``."""
+    """``K[row, ci] += D``, ``K[row, cj] -= D`` with ``D = d/dr (A v + B rh (rh.v))``
+    (rows with ``rmask``, position components with ``xmask``)."""
     s = h[0] * v[0] + h[1] * v[1] + h[2] * v[2]
     cI = B * s / r
     cHH = dB * s - 2.0 * B * s / r
     cHV = B / r
     for k in range(3):
+        if not rmask[row + k]:
+            continue
         for m in range(3):
+            if not xmask[m]:
+                continue
             d = dA * v[k] * h[m] + cHH * h[k] * h[m] + cHV * h[k] * v[m]
             if k == m:
                 d += cI
@@ -75,33 +80,29 @@ def _add_sym_block(
 @njit(cache=True)
 def _add_cross_block(
     K: np.ndarray, row: int, ci: int, cj: int, h: np.ndarray, v: np.ndarray,
-    sign: float, c: float, dc: float, r: float,
+    sign: float, c: float, dc: float, r: float, rmask: np.ndarray, xmask: np.ndarray,
 ) -> None:
-    """``K[row, ci] += D``, ``K[row, cj] -= D`` with ``D = sign d/dr (c v x rh)``."""
-    w0 = v[1] * h[2] - v[2] * h[1]
-    w1 = v[2] * h[0] - v[0] * h[2]
-    w2 = v[0] * h[1] - v[1] * h[0]
+    """``K[row, ci] += D``, ``K[row, cj] -= D`` with ``D = sign d/dr (c v x rh)``
+    (rows with ``rmask``, position components with ``xmask``)."""
+    wv = (v[1] * h[2] - v[2] * h[1], v[2] * h[0] - v[0] * h[2], v[0] * h[1] - v[1] * h[0])
     e = sign * (dc - c / r)
     f = sign * c / r
-    # [v]x rows: (0, -v2, v1), (v2, 0, -v0), (-v1, v0, 0)
-    K[row, ci] += e * w0 * h[0]
-    K[row, ci + 1] += e * w0 * h[1] - f * v[2]
-    K[row, ci + 2] += e * w0 * h[2] + f * v[1]
-    K[row + 1, ci] += e * w1 * h[0] + f * v[2]
-    K[row + 1, ci + 1] += e * w1 * h[1]
-    K[row + 1, ci + 2] += e * w1 * h[2] - f * v[0]
-    K[row + 2, ci] += e * w2 * h[0] - f * v[1]
-    K[row + 2, ci + 1] += e * w2 * h[1] + f * v[0]
-    K[row + 2, ci + 2] += e * w2 * h[2]
-    K[row, cj] -= e * w0 * h[0]
-    K[row, cj + 1] -= e * w0 * h[1] - f * v[2]
-    K[row, cj + 2] -= e * w0 * h[2] + f * v[1]
-    K[row + 1, cj] -= e * w1 * h[0] + f * v[2]
-    K[row + 1, cj + 1] -= e * w1 * h[1]
-    K[row + 1, cj + 2] -= e * w1 * h[2] - f * v[0]
-    K[row + 2, cj] -= e * w2 * h[0] - f * v[1]
-    K[row + 2, cj + 1] -= e * w2 * h[1] + f * v[0]
-    K[row + 2, cj + 2] -= e * w2 * h[2]
+    for k in range(3):
+        if not rmask[row + k]:
+            continue
+        k1 = (k + 1) % 3
+        k2 = (k + 2) % 3
+        for m in range(3):
+            if not xmask[m]:
+                continue
+            d = e * wv[k] * h[m]
+            # [v]x[k, k1] = -v[k2], [v]x[k, k2] = v[k1]
+            if m == k1:
+                d -= f * v[k2]
+            elif m == k2:
+                d += f * v[k1]
+            K[row + k, ci + m] += d
+            K[row + k, cj + m] -= d
 
 
 @njit(cache=True)
@@ -114,6 +115,18 @@ def rpy_apply_jacobian(
     ``X_n`` (component-major within a segment). Both regimes, all blocks
     (translation-translation, rotation-rotation and the two couplings).
     """
+    N = X.shape[0]
+    return rpy_apply_jacobian_masked(X, a, eta, F, T, np.ones(6 * N, dtype=np.bool_),
+                                     np.ones(3, dtype=np.bool_))
+
+
+@njit(cache=True)
+def rpy_apply_jacobian_masked(
+    X: np.ndarray, a: float, eta: float, F: np.ndarray, T: np.ndarray, rmask: np.ndarray,
+    xmask: np.ndarray,
+) -> np.ndarray:
+    """:func:`rpy_apply_jacobian` on the rows with ``rmask`` (6N,) and the
+    position components with ``xmask`` (3,) only (the other entries are 0)."""
     N = X.shape[0]
     K = np.zeros((6 * N, 3 * N))
     R = 3 * N
@@ -140,14 +153,14 @@ def rpy_apply_jacobian(
                 Tj[k] = T[j, k]
             ci, cj = 3 * i, 3 * j
             # translation-translation: V_i(F_j), V_j(F_i) (even in rh)
-            _add_sym_block(K, 3 * i, ci, cj, h, Fj, ttI, dttI, ttR, dttR, r)
-            _add_sym_block(K, 3 * j, ci, cj, h, Fi, ttI, dttI, ttR, dttR, r)
+            _add_sym_block(K, 3 * i, ci, cj, h, Fj, ttI, dttI, ttR, dttR, r, rmask, xmask)
+            _add_sym_block(K, 3 * j, ci, cj, h, Fi, ttI, dttI, ttR, dttR, r, rmask, xmask)
             # rotation-rotation: Omega_i(T_j), Omega_j(T_i)
-            _add_sym_block(K, R + 3 * i, ci, cj, h, Tj, rrI, drrI, rrR, drrR, r)
-            _add_sym_block(K, R + 3 * j, ci, cj, h, Ti, rrI, drrI, rrR, drrR, r)
+            _add_sym_block(K, R + 3 * i, ci, cj, h, Tj, rrI, drrI, rrR, drrR, r, rmask, xmask)
+            _add_sym_block(K, R + 3 * j, ci, cj, h, Ti, rrI, drrI, rrR, drrR, r, rmask, xmask)
             # couplings: V_i += cp T_j x rh, V_j -= cp T_i x rh, the same with F for Omega
-            _add_cross_block(K, 3 * i, ci, cj, h, Tj, 1.0, cp, dcp, r)
-            _add_cross_block(K, 3 * j, ci, cj, h, Ti, -1.0, cp, dcp, r)
-            _add_cross_block(K, R + 3 * i, ci, cj, h, Fj, 1.0, cp, dcp, r)
-            _add_cross_block(K, R + 3 * j, ci, cj, h, Fi, -1.0, cp, dcp, r)
+            _add_cross_block(K, 3 * i, ci, cj, h, Tj, 1.0, cp, dcp, r, rmask, xmask)
+            _add_cross_block(K, 3 * j, ci, cj, h, Ti, -1.0, cp, dcp, r, rmask, xmask)
+            _add_cross_block(K, R + 3 * i, ci, cj, h, Fj, 1.0, cp, dcp, r, rmask, xmask)
+            _add_cross_block(K, R + 3 * j, ci, cj, h, Fi, -1.0, cp, dcp, r, rmask, xmask)
     return K
