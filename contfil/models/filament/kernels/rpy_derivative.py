@@ -53,7 +53,7 @@ def pair_coeff_derivs(r: float, a: float, eta: float) -> tuple[float, float, flo
     return dttI, dttR, drrI, drrR, dcp
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _add_sym_block(
     K: np.ndarray, row: int, ci: int, cj: int, h: np.ndarray, v: np.ndarray,
     A: float, dA: float, B: float, dB: float, r: float, rmask: np.ndarray, xmask: np.ndarray,
@@ -77,7 +77,7 @@ def _add_sym_block(
             K[row + k, cj + m] -= d
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _add_cross_block(
     K: np.ndarray, row: int, ci: int, cj: int, h: np.ndarray, v: np.ndarray,
     sign: float, c: float, dc: float, r: float, rmask: np.ndarray, xmask: np.ndarray,
