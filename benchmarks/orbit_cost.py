@@ -13,9 +13,10 @@ pseudo-arclength step from b1 = 716.5 to ~742.5, Newton tolerance 1e-10
 - ``after``: exact tangents (``flow_tangent``): exact Jacobians at converged
   points and Broyden updates in between, multipliers from the planar
   monodromy and one 3D sweep of the out-of-plane block, period means along
-  the sweep;
-- ``fwd``: the same with forward instead of central differences of each
-  step's increment columns (half the residuals, ~1e-8 tangents).
+  the sweep; each step's Jacobian fully analytic (RPY position derivative,
+  frame derivatives of the loads and the squirming flow);
+- ``fdcols``: the same with each step's increment columns by central
+  differences of the residual (``increments="fd"``, the previous path).
 
 Each path runs twice; the lesser CPU counts.
 
@@ -25,7 +26,11 @@ at their measured CPU ratios to it. Also measured: the period error of BDF2
 at ``T/400`` (against Richardson extrapolation of ``T/800`` and
 ``T/1600``, with that estimate's own error from ``T/400``/``T/800``), and
 the BDF2 step cost against the floor (RPY assembly + the 63x63 constraint
-LU + a 120x120 matvec).
+LU + a 120x120 matvec), and the CPU per step of the tangent step's parts
+(``tangent_step_us``: dense mobility, load columns, exact increment
+columns, the rest of the step matrices, the solve for all directions with
+the propagation; the difference-columns step beside it), at a converged
+step of the orbit, for the planar block and the out-of-plane block.
 
 No higher-order integrator exists yet: ``cpu_vs_bdf2_T400`` is null.
 
@@ -262,6 +267,7 @@ def _block_breakdown(st: BDF2Stepper, phys: Any, zf: np.ndarray, qk: np.ndarray,
     t = tangents(q)
     X = positions(t, phys.dL)
     Mob = _kt.dense_mobility(X, par, phys.flags)
+    _, A, _ = _kt._segment_blocks(zf, N)
     ds = np.zeros(nd)
     ds[-1] = float(planar)
 
@@ -275,9 +281,9 @@ def _block_breakdown(st: BDF2Stepper, phys: Any, zf: np.ndarray, qk: np.ndarray,
         "step_matrices": lambda: _kt.step_matrices(zf, qk, xk, xkm1, uk, coef, par, dpar,
                                                    phys.flags, zm, rm, scale, planar),
         "mobility": lambda: _kt.dense_mobility(X, par, phys.flags),
-        "load_columns": lambda: _kt._load_columns(zf, t, coef, par, zm, rm, scale, nu, Mob),
+        "load_columns": lambda: _kt._load_columns(zf, t, coef, par, zm, rm, scale, nu, Mob, A),
         "increment_columns": lambda: _kt.residual_frame_jacobian(
-            zf, q, t, X, coef, par, phys.flags, Mob, zm, rm, nu),
+            zf, q, t, X, coef, par, phys.flags, Mob, zm, rm, nu, A),
         "fd_columns_total": lambda: step(_kt.INC_CENTRAL),
     }
     # interleaved rounds, least per-call time of each part (the machine is shared)

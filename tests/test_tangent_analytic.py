@@ -156,3 +156,18 @@ def test_dexp_inv_derivative_matches_central_differences(size: float) -> None:
     D0 = dexp_inv_du(np.zeros(3), v)
     assert np.allclose(D0, 0.5 * np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]],
                                            [-v[1], v[0], 0]]), rtol=0, atol=1e-15)
+
+
+def test_segment_blocks_are_the_dexp_matrices() -> None:
+    # the allocation-free closed forms agree with dexp_matrix on both sides
+    # of the series threshold, and dexp(u) dexp_inv(u) = I
+    from contfil.models.filament.kernels.quaternion import dexp_matrix
+
+    rng = np.random.default_rng(2)
+    us = [rng.standard_normal(3) * s for s in (1e-3, 0.1, 0.2499, 0.2501, 1.0, 2.5)]
+    zf = np.concatenate(us + [np.zeros(6 * 7 - 18)])
+    B, A, _ = _kt._segment_blocks(zf, 7)
+    for m, u in enumerate(us):
+        assert np.max(np.abs(B[m] - dexp_matrix(u, False))) < 1e-15
+        assert np.max(np.abs(A[m] - dexp_matrix(u, True))) < 1e-15
+        assert np.max(np.abs(B[m] @ A[m] - np.eye(3))) < 1e-14

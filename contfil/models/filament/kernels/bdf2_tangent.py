@@ -70,7 +70,7 @@ from .bdf2_residual import (
 from .effects import F_HYDRO, HYD_RPY, P_A, P_B1, P_DL, P_ETA, P_F, P_KB, P_KT
 from .frame_jacobian import velocity_frame_jacobian
 from .geometry import positions, tangents
-from .quaternion import dexp_inv, dexp_inv_du, dexp_matrix, qexp, qrotmat
+from .quaternion import dexp_coefficients, dexp_inv, dexp_inv_du, qexp, qrotmat
 from .rpy import local_mobility, rpy_mobility
 
 #: Central-difference step (radians) of the increment columns of dR/dz:
@@ -109,8 +109,23 @@ def _segment_blocks(zf: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray, np.
     for m in range(N - 1):
         for k in range(3):
             u[k] = zf[3 * m + k]
-        B[m] = dexp_matrix(u, False)
-        A[m] = dexp_matrix(u, True)
+        th2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2]
+        a, b, c = dexp_coefficients(th2)
+        # [u]x and [u]x^2 = u u^T - |u|^2 I: B = I + a [u]x + b [u]x^2,
+        # A = I - [u]x / 2 + c [u]x^2 (no per-call allocations as in dexp_matrix)
+        for i in range(3):
+            for j in range(3):
+                s2 = u[i] * u[j] - (th2 if i == j else 0.0)
+                d = 1.0 if i == j else 0.0
+                B[m, i, j] = d + b * s2
+                A[m, i, j] = d + c * s2
+        for i in range(3):
+            i1, i2 = (i + 1) % 3, (i + 2) % 3
+            # [u]x[i, i1] = -u[i2], [u]x[i, i2] = u[i1]
+            B[m, i, i1] -= a * u[i2]
+            B[m, i, i2] += a * u[i1]
+            A[m, i, i1] += 0.5 * u[i2]
+            A[m, i, i2] -= 0.5 * u[i1]
         Rt[m] = qrotmat(qexp(u))
     return B, A, Rt
 
@@ -162,7 +177,8 @@ def load_columns(
     frames_at(zf, qk, q)
     t = tangents(q)
     M = dense_mobility(positions(t, par[P_DL]), par, flags)
-    return _load_columns(zf, t, coef, par, zmap, rmap, scale, nu, M)
+    _, A, _ = _segment_blocks(zf, N)
+    return _load_columns(zf, t, coef, par, zmap, rmap, scale, nu, M, A)
 
 
 @njit(cache=True)
@@ -176,8 +192,10 @@ def _load_columns(
     scale: np.ndarray,
     nu: int,
     M: np.ndarray,
+    A: np.ndarray,
 ) -> np.ndarray:
-    """:func:`load_columns` at the step's tangents ``t`` and dense mobility ``M``."""
+    """:func:`load_columns` at the step's tangents ``t``, dense mobility ``M``
+    and ``dexp_inv(u_m)`` blocks ``A`` (N-1, 3, 3)."""
     N = t.shape[0]
     nz = zmap.shape[0]
     nl = nz - nu
@@ -214,7 +232,6 @@ def _load_columns(
             for i in range(6 * N):
                 MG[i, jj] = sT * M[i, RT + k]
     out = np.empty((nz, nl))
-    u = np.zeros(3)
     for i in range(nz):
         r = rmap[i]
         if r < 3 * N:
@@ -226,13 +243,11 @@ def _load_columns(
                 for j in range(nl):
                     out[i, j] = -gdt * MG[r, j]
             else:
-                for k in range(3):
-                    u[k] = zf[3 * (n - 1) + k]
-                A = dexp_matrix(u, True)
+                An = A[n - 1]
                 for j in range(nl):
-                    out[i, j] = -gdt * (A[c, 0] * MG[3 * N + 3 * n, j]
-                                        + A[c, 1] * MG[3 * N + 3 * n + 1, j]
-                                        + A[c, 2] * MG[3 * N + 3 * n + 2, j])
+                    out[i, j] = -gdt * (An[c, 0] * MG[3 * N + 3 * n, j]
+                                        + An[c, 1] * MG[3 * N + 3 * n + 1, j]
+                                        + An[c, 2] * MG[3 * N + 3 * n + 2, j])
     return out
 
 
@@ -249,6 +264,7 @@ def residual_frame_jacobian(
     zmap: np.ndarray,
     rmap: np.ndarray,
     nu: int,
+    A: np.ndarray,
 ) -> np.ndarray:
     """``dR/dth`` (nz, nu): the selected scaled residual rows ``rmap`` against
     spatial rotations of the new frames (components ``zmap[:nu]``, segments
@@ -258,10 +274,11 @@ def residual_frame_jacobian(
     dexp_inv(u_n) dOmega_n`` (``-g dt dOmega_0`` for the clamped segment);
     ``dX`` by the robot arm, ``d[V; Omega]`` by
     :func:`.frame_jacobian.velocity_frame_jacobian` (``M``: the dense
-    mobility at ``X``), evaluated on the selected rows and components only
-    (``dexp_inv(u_n)`` is restricted to the selected components, exact
-    because the block is invariant). The explicit ``u`` of the orientation
-    rows is not part of it (``E`` in :func:`step_matrices`).
+    mobility at ``X``; ``A``: the ``dexp_inv(u_m)`` blocks), evaluated on
+    the selected rows and components only (``dexp_inv(u_n)`` is restricted
+    to the selected components, exact because the block is invariant). The
+    explicit ``u`` of the orientation rows is not part of it (``E`` in
+    :func:`step_matrices`).
     """
     N = q.shape[0]
     nz = rmap.shape[0]
@@ -276,7 +293,6 @@ def residual_frame_jacobian(
         cmask[zmap[j] % 3] = True
     W = velocity_frame_jacobian(q, t, X, Lam, Fc, Tc, par, flags, M, rmask, cmask)
     G = np.empty((nz, nu))
-    u = np.empty(3)
     R = 3 * N
     for i in range(nz):
         r = rmap[i]
@@ -299,14 +315,12 @@ def residual_frame_jacobian(
                 for j in range(nu):
                     G[i, j] = -gdt * W[r, zmap[j]]
             else:
-                for kk in range(3):
-                    u[kk] = zf[3 * (n - 1) + kk]
-                A = dexp_matrix(u, True)
+                An = A[n - 1]
                 for j in range(nu):
                     acc = 0.0
                     for kk in range(3):
                         if rmask[R + 3 * n + kk]:
-                            acc += A[k, kk] * W[R + 3 * n + kk, zmap[j]]
+                            acc += An[k, kk] * W[R + 3 * n + kk, zmap[j]]
                     G[i, j] = -gdt * acc
     return G
 
@@ -369,7 +383,8 @@ def _step_system(
     Lam, Fc, Tc = unpack_loads(zf, N)
     Mob = dense_mobility(Xn, par, flags)
     J = np.empty((nz, nz))
-    Jl = _load_columns(zf, t, coef, par, zmap, rmap, scale, nu, Mob)
+    B, A, Rt = _segment_blocks(zf, N)
+    Jl = _load_columns(zf, t, coef, par, zmap, rmap, scale, nu, Mob, A)
     for i in range(nz):
         for j in range(nz - nu):
             J[i, nu + j] = Jl[i, j]
@@ -397,7 +412,6 @@ def _step_system(
             if r == c:
                 v += 1.0
             E[ii, j] = v
-    B, A, Rt = _segment_blocks(zf, N)
     Rr = _reduced_block(Rt, zmap, nu)
     Br = _reduced_block(B, zmap, nu)
     rp = np.empty(6 * N)
@@ -405,7 +419,7 @@ def _step_system(
     if mode == INC_ANALYTIC:
         # R depends on u through the new frames (th = dexp(u) du) and
         # explicitly (E): J_u = G B + E, and dR/dth^k = G Rot(u)
-        Gs = residual_frame_jacobian(zf, q, t, Xn, coef, par, flags, Mob, zmap, rmap, nu)
+        Gs = residual_frame_jacobian(zf, q, t, Xn, coef, par, flags, Mob, zmap, rmap, nu, A)
         Ju = Gs @ Br
         for i in range(nz):
             for j in range(nu):

@@ -174,6 +174,31 @@ def dexp_inv(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def dexp_coefficients(th2: float) -> tuple[float, float, float]:
+    """``(a, b, c)`` of :func:`dexp` (``v + a u x v + b u x (u x v)``) and
+    :func:`dexp_inv` (``v - u x v / 2 + c u x (u x v)``) at ``th2 = |u|^2``,
+    the same formulas (series below the same threshold)."""
+    th = np.sqrt(th2)
+    if th < _SERIES_TH:
+        a = 0.5 - th2 / 24.0 + th2 * th2 / 720.0 - th2**3 / 40320.0 + th2**4 / 3628800.0
+        b = 1.0 / 6.0 - th2 / 120.0 + th2 * th2 / 5040.0 - th2**3 / 362880.0 + th2**4 / 39916800.0
+        c = (
+            1.0 / 12.0
+            + th2 / 720.0
+            + th2 * th2 / 30240.0
+            + th2**3 / 1209600.0
+            + th2**4 / 47900160.0
+        )
+    else:
+        sh = np.sin(0.5 * th)
+        a = 2.0 * sh * sh / th2
+        b = (th - np.sin(th)) / (th2 * th)
+        h = 0.5 * th
+        c = (1.0 - h * np.cos(h) / np.sin(h)) / th2
+    return a, b, c
+
+
+@njit(cache=True)
 def dexp_matrix(u: np.ndarray, inverse: bool) -> np.ndarray:
     """Matrix of ``v -> dexp(u, v)`` (or of ``dexp_inv(u, .)`` when ``inverse``)."""
     A = np.empty((3, 3))
