@@ -34,6 +34,13 @@ step of the orbit, for the planar block and the out-of-plane block.
 
 No higher-order integrator exists yet: ``cpu_vs_bdf2_T400`` is null.
 
+Measured 2026-12-01 (shared 2-core machine, load ~4.5; docs/performance.md):
+11.5 flows per point against 128.1 before (23.4 with difference columns),
+CPU 0.098 of before (0.206); a planar sweep 2.22 units, the out-of-plane
+sweep 2.29 (5.50 and 10.94 with difference columns); the tangent step
+207 us (planar) / 235 us (out of plane) against a 197 us flow step
+(809 / 1469 us with difference columns); ``step_vs_floor`` 3.19.
+
 Run (single-threaded BLAS; CPU times of this process)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py    (~10 min CPU)
