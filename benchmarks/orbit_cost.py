@@ -13,9 +13,10 @@ pseudo-arclength step from b1 = 716.5 to ~742.5, Newton tolerance 1e-10
 - ``after``: exact tangents (``flow_tangent``): exact Jacobians at converged
   points and Broyden updates in between, multipliers from the planar
   monodromy and one 3D sweep of the out-of-plane block, period means along
-  the sweep;
-- ``fwd``: the same with forward instead of central differences of each
-  step's increment columns (half the residuals, ~1e-8 tangents).
+  the sweep; each step's Jacobian fully analytic (RPY position derivative,
+  frame derivatives of the loads and the squirming flow);
+- ``fdcols``: the same with each step's increment columns by central
+  differences of the residual (``increments="fd"``, the previous path).
 
 Each path runs twice; the lesser CPU counts.
 
@@ -25,9 +26,20 @@ at their measured CPU ratios to it. Also measured: the period error of BDF2
 at ``T/400`` (against Richardson extrapolation of ``T/800`` and
 ``T/1600``, with that estimate's own error from ``T/400``/``T/800``), and
 the BDF2 step cost against the floor (RPY assembly + the 63x63 constraint
-LU + a 120x120 matvec).
+LU + a 120x120 matvec), and the CPU per step of the tangent step's parts
+(``tangent_step_us``: dense mobility, load columns, exact increment
+columns, the rest of the step matrices, the solve for all directions with
+the propagation; the difference-columns step beside it), at a converged
+step of the orbit, for the planar block and the out-of-plane block.
 
 No higher-order integrator exists yet: ``cpu_vs_bdf2_T400`` is null.
+
+Measured 2026-12-01 (shared 2-core machine, load ~4.5; docs/performance.md):
+11.5 flows per point against 128.1 before (23.4 with difference columns),
+CPU 0.098 of before (0.206); a planar sweep 2.22 units, the out-of-plane
+sweep 2.29 (5.50 and 10.94 with difference columns); the tangent step
+207 us (planar) / 235 us (out of plane) against a 197 us flow step
+(809 / 1469 us with difference columns); ``step_vs_floor`` 3.19.
 
 Run (single-threaded BLAS; CPU times of this process)::
 
@@ -60,8 +72,13 @@ from contfil.engine.problems.shooting import PeriodicOrbitProblem  # noqa: E402
 from contfil.models.filament import FilamentModel  # noqa: E402
 from contfil.models.filament.cycles import FixedStepFlow  # noqa: E402
 from contfil.models.filament.integrators.bdf2 import embed_planar  # noqa: E402
+from contfil.models.filament.integrators.bdf2_stepper import BDF2Stepper  # noqa: E402
+from contfil.models.filament.integrators.bdf2_tangent import _strength, normal_maps  # noqa: E402
+from contfil.models.filament.kernels import bdf2_step as _k  # noqa: E402
+from contfil.models.filament.kernels import bdf2_tangent as _kt  # noqa: E402
 from contfil.models.filament.kernels import rpy as krpy  # noqa: E402
-from contfil.models.filament.kernels.geometry import configuration  # noqa: E402
+from contfil.models.filament.kernels.bdf2_residual import frames_at  # noqa: E402
+from contfil.models.filament.kernels.geometry import configuration, positions, tangents  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 P0, P1 = 716.5, 742.5
@@ -75,12 +92,17 @@ class NoTangentFlow(FixedStepFlow):
     flow_tangent = None  # type: ignore[assignment]
 
 
-class ForwardTangentFlow(FixedStepFlow):
-    """Exact tangents with forward differences of the increment columns."""
+class FDColumnsFlow(FixedStepFlow):
+    """The previous exact-tangent path: each step's increment columns by
+    central differences of the residual (``increments="fd"``)."""
 
-    def __init__(self, model: FilamentModel, steps: int = STEPS,
-                 tangent_fd: str = "forward", **kw: Any) -> None:
-        super().__init__(model, steps, tangent_fd, **kw)
+    def flow_tangent(self, u: np.ndarray, p: np.ndarray, T: float, V: np.ndarray | None = None,
+                     param_index: int | None = None, samples: int = 0) -> Any:
+        self.tangent_calls += 1
+        k = samples if samples and self.steps % samples == 0 else 0
+        return self.base.flow_tangent(u, p, T, V, param_index=param_index, samples=k,
+                                      steps=self.steps, fd="central", increments="fd",
+                                      **self.stepper_kw)
 
 
 def cpu(f: Any, repeat: int = 3) -> float:
@@ -173,10 +195,9 @@ def unit_costs(m: FilamentModel, x: np.ndarray, p: float) -> dict[str, float]:
         "flow_3d": cpu(lambda: fm.flow(U, q, T)) / unit,
         "sweep_planar": cpu(lambda: pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
         "sweep_3d_block": cpu(lambda: fm.flow_tangent(U, q, T, C), 2) / unit,
-        "sweep_planar_fwd": cpu(lambda: ForwardTangentFlow(pl.base).flow_tangent(
+        "sweep_planar_fd": cpu(lambda: FDColumnsFlow(pl.base).flow_tangent(
             phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
-        "sweep_3d_block_fwd": cpu(lambda: ForwardTangentFlow(m).flow_tangent(U, q, T, C), 2)
-        / unit,
+        "sweep_3d_block_fd": cpu(lambda: FDColumnsFlow(m).flow_tangent(U, q, T, C), 2) / unit,
     }
 
 
@@ -195,6 +216,92 @@ def floor_ratio(m: FilamentModel, x: np.ndarray, unit_cpu: float) -> float:
             Mb @ v
 
     return (unit_cpu / STEPS) / (cpu(floor) / 200)
+
+
+def _per_call_us(f: Any, n: int = 200, batches: int = 3) -> float:
+    """Least mean CPU microseconds per call over ``batches`` batches of ``n`` calls."""
+    f()
+    return 1e6 * cpu(lambda: [f() for _ in range(n)], batches) / n
+
+
+def tangent_step_breakdown(m: FilamentModel, x: np.ndarray, p: float) -> dict[str, Any]:
+    """CPU per step of the tangent sweep's parts at a converged step of the orbit.
+
+    ``planar``: the planar block (the shooting monodromy, 19 directions +
+    d/dT + d/ds); ``out_of_plane``: the 3D block normal to the plane (38
+    directions) along the planar flow. Parts of ``tangent_step``:
+    ``mobility`` (dense RPY), ``load_columns``, ``increment_columns`` (the
+    exact frame derivative), the rest of ``step_matrices`` (velocities, the
+    explicit-u term, d/dT and d/ds columns), then ``solve_propagate`` (the LU
+    solve for all directions and the frame/position updates) = total minus
+    step_matrices; ``fd_columns_total``: the same step with the increment
+    columns by central differences (the previous path).
+    """
+    pl = FixedStepFlow(m, STEPS).symmetries.invariant_subspaces["planar_xz"].reduced_model().base
+    phi, T = x[:-1], x[-1]
+    st = BDF2Stepper(pl, T / STEPS, tol=1e-12, p=np.array([p]))
+    st.reset(phi)
+    st._advance(STEPS // 3)
+    qk, xk, xkm1, uk = st._q.copy(), st._x.copy(), st._xm1.copy(), st._zp.copy()
+    flow_step = _per_call_us(lambda: st.reset(phi) or st._advance(STEPS), 3) / STEPS
+    st.reset(phi)
+    st._advance(STEPS // 3 + 1)
+    N = m.N
+    coef, scale = np.empty(5), np.ones(6 * N)
+    _k._step_setup(STEPS // 3, st.dt, st.par, coef, scale)
+    zf = st._zp.copy()
+    out = {blk: _block_breakdown(st, phys, zf, qk, xk, xkm1, uk, coef, scale, blk == "planar")
+           for blk, phys in (("planar", pl.physics), ("out_of_plane", m.physics))}
+    for row in out.values():
+        row["flow_step"] = flow_step
+    return out
+
+
+def _block_breakdown(st: BDF2Stepper, phys: Any, zf: np.ndarray, qk: np.ndarray,
+                     xk: np.ndarray, xkm1: np.ndarray, uk: np.ndarray, coef: np.ndarray,
+                     scale: np.ndarray, planar: bool) -> dict[str, float]:
+    """:func:`tangent_step_breakdown` of one block (planar or out of plane)."""
+    N = qk.shape[0]
+    s = _strength(st.par)
+    par = phys.params(s)
+    dpar = phys.params(s + 1.0) - par
+    zm, rm = (st._zmap, st._rmap) if planar else normal_maps(N)
+    nu = int(_kt.reduced_counts(zm, rm, N)[0])
+    npos = 2 * N if planar else N
+    nd = nu + 2 if planar else nu  # the planar sweep also carries d/dT and d/ds
+    q = np.empty((N, 4))
+    frames_at(zf, qk, q)
+    t = tangents(q)
+    X = positions(t, phys.dL)
+    Mob = _kt.dense_mobility(X, par, phys.flags)
+    _, A, _ = _kt._segment_blocks(zf, N)
+    ds = np.zeros(nd)
+    ds[-1] = float(planar)
+
+    def step(mode: int) -> None:
+        _kt.tangent_step(zf, qk, xk, xkm1, uk, coef, par, dpar, phys.flags, zm, rm, scale,
+                         np.ones((nu, nd)), np.ones((npos, nd)), np.ones((npos, nd)),
+                         np.ones((nu, nd)), np.zeros(nd), ds, mode)
+
+    parts = {
+        "total": lambda: step(_kt.INC_ANALYTIC),
+        "step_matrices": lambda: _kt.step_matrices(zf, qk, xk, xkm1, uk, coef, par, dpar,
+                                                   phys.flags, zm, rm, scale, planar),
+        "mobility": lambda: _kt.dense_mobility(X, par, phys.flags),
+        "load_columns": lambda: _kt._load_columns(zf, t, coef, par, zm, rm, scale, nu, Mob, A),
+        "increment_columns": lambda: _kt.residual_frame_jacobian(
+            zf, q, t, X, coef, par, phys.flags, Mob, zm, rm, nu, A),
+        "fd_columns_total": lambda: step(_kt.INC_CENTRAL),
+    }
+    # interleaved rounds, least per-call time of each part (the machine is shared)
+    us = dict.fromkeys(parts, np.inf)
+    for _ in range(7):
+        for name, f in parts.items():
+            us[name] = min(us[name], _per_call_us(f, 20 if name == "fd_columns_total" else 60))
+    sm = us.pop("step_matrices")
+    us["step_matrices_rest"] = sm - us["mobility"] - us["load_columns"] - us["increment_columns"]
+    us["solve_propagate"] = us["total"] - sm
+    return us
 
 
 def solve_at_with_mu(m: FilamentModel, x0: np.ndarray, p: float,
@@ -232,7 +339,7 @@ def main() -> None:
     unit_costs(m, x0, P0)
     before = one_point(m, x0, NoTangentFlow, fd_central=False)
     after = one_point(m, x0, FixedStepFlow)
-    fwd = one_point(m, x0, ForwardTangentFlow)
+    fdc = one_point(m, x0, FDColumnsFlow)
     uc = unit_costs(m, after["x"], after["p"])
     flows_before = before["planar_flows"] + uc["flow_3d"] * before["flows_3d"]
 
@@ -241,19 +348,23 @@ def main() -> None:
                 + uc["sweep_planar" + suffix] * r["planar_sweeps"]
                 + uc["sweep_3d_block" + suffix] * r["sweeps_3d"])
 
-    flows_after, flows_fwd = flows(after), flows(fwd, "_fwd")
-    for name, r in (("before", before), ("after", after), ("fwd", fwd)):
+    flows_after, flows_fdc = flows(after), flows(fdc, "_fd")
+    for name, r in (("before", before), ("after", after), ("fdcols", fdc)):
         print(f"{name:6s}: b1 = {r['p']:.6f} T = {r['T']:.10f} Newton it = "
               f"{r['newton_iterations']} residual = {r['residual']:.1e} | planar flows "
               f"{r['planar_flows']}, 3D flows {r['flows_3d']}, planar sweeps "
               f"{r['planar_sweeps']}, 3D sweeps {r['sweeps_3d']} | CPU {r['cpu']:.2f} s | "
               f"mu = {np.round(r['multipliers'], 6)} | mean E = {r['mean_E']:.8f}", flush=True)
     print(f"unit (planar flow T/400) = {uc['unit_cpu']:.4f} s CPU; 3D flow = "
-          f"{uc['flow_3d']:.2f}, planar sweep = {uc['sweep_planar']:.2f} (forward "
-          f"{uc['sweep_planar_fwd']:.2f}), 3D out-of-plane sweep = {uc['sweep_3d_block']:.2f} "
-          f"(forward {uc['sweep_3d_block_fwd']:.2f}) units")
+          f"{uc['flow_3d']:.2f}, planar sweep = {uc['sweep_planar']:.2f} (difference "
+          f"columns {uc['sweep_planar_fd']:.2f}), 3D out-of-plane sweep = "
+          f"{uc['sweep_3d_block']:.2f} (difference columns {uc['sweep_3d_block_fd']:.2f}) units")
     print(f"flows per point: before {flows_before:.1f}, after {flows_after:.1f}, "
-          f"after with forward differences {flows_fwd:.1f}")
+          f"with difference columns {flows_fdc:.1f}")
+    bd = tangent_step_breakdown(m, after["x"], after["p"])
+    for blk, row in bd.items():
+        print(f"tangent step ({blk}), us per step: " + ", ".join(
+            f"{k} {v:.1f}" for k, v in row.items()))
     diff_T = abs(before["T"] - after["T"])
     diff_mu = float(np.max(np.abs(before["multipliers"] - after["multipliers"])))
     print(f"before vs after: |dT| = {diff_T:.1e}, max |d mu| (4 leading) = {diff_mu:.1e}")
@@ -273,8 +384,8 @@ def main() -> None:
         "cpu_per_point_vs_before": round(after["cpu"] / before["cpu"], 4),
         "cpu_per_point_s": round(after["cpu"], 3),
         "cpu_per_point_before_s": round(before["cpu"], 3),
-        "flows_per_point_forward_fd": round(flows_fwd, 2),
-        "cpu_per_point_vs_before_forward_fd": round(fwd["cpu"] / before["cpu"], 4),
+        "flows_per_point_fd_columns": round(flows_fdc, 2),
+        "cpu_per_point_vs_before_fd_columns": round(fdc["cpu"] / before["cpu"], 4),
         "period_error": float(f"{pe['period_error']:.3e}"),
         "period_error_method": "relative, BDF2 T/400 vs Richardson(T/800, T/1600)",
         "cpu_vs_bdf2_T400": None,  # no higher-order integrator yet
@@ -286,6 +397,10 @@ def main() -> None:
         "dT_before_after": float(f"{diff_T:.2e}"),
         "dmu_before_after": float(f"{diff_mu:.2e}"),
         "multiplier_error": float(f"{pe['mu_error']:.3e}"),
+        "sweep_planar_units_fd_columns": round(uc["sweep_planar_fd"], 2),
+        "sweep_3d_block_units_fd_columns": round(uc["sweep_3d_block_fd"], 2),
+        "tangent_step_us": {blk: {k: round(v, 1) for k, v in row.items()}
+                            for blk, row in bd.items()},
     }
     print(json.dumps(out))
 

@@ -129,7 +129,7 @@ def test_forward_difference_option_is_close_to_central() -> None:
     u = _state(m, 6)
     p = m.default_params()
     c = flow_tangent(m, u, p, T, steps=STEPS)
-    f = flow_tangent(m, u, p, T, steps=STEPS, fd="forward")
+    f = flow_tangent(m, u, p, T, steps=STEPS, increments="fd", fd="forward")
     err = np.max(np.abs(f.jvp - c.jvp)) / np.max(np.abs(c.jvp))
     # forward differences of the increment columns: ~sqrt(eps) accurate
     assert 1e-12 < err < 1e-6

@@ -11,13 +11,17 @@ the actuation strength ``s``. The result is the derivative of the discrete
 map, so shooting Newton on it converges quadratically (up to the Broyden
 tolerance of the steps).
 
-Cost: per step one approximate Jacobian, ``2 n_u`` residuals for the
-increment columns (``n_u = N-1`` planar, ``3(N-1)`` in 3D) and one LU of the
-``3N`` (planar) or ``6N`` unknowns; independent of the number of directions
-(measured in ``benchmarks/orbit_cost.py``). Directions normal to the plane
-at a planar state of a 3D model (the out-of-plane Floquet block of a
-beating orbit) are propagated along the planar stepper's flow through the
-out-of-plane block alone: ``2(N-1)`` increment columns, ``3N`` unknowns.
+Cost: per step the exact step Jacobian (load columns and increment columns
+analytic, ``O(N^2)``: RPY position derivative, frame derivatives of the
+elastic, constraint and active loads and of the squirming flow) and one LU
+of the ``3N`` (planar) or ``6N`` unknowns, solved for all directions
+together (measured in ``benchmarks/orbit_cost.py``: a planar sweep of the
+tip SF orbit costs about 2.5 flows). ``increments="fd"`` keeps the previous
+path, ``2 n_u`` residuals per step for the increment columns (``n_u = N-1``
+planar, ``3(N-1)`` in 3D), ``O(N^3)``, for checking. Directions normal to
+the plane at a planar state of a 3D model (the out-of-plane Floquet block of
+a beating orbit) are propagated along the planar stepper's flow through the
+out-of-plane block alone (``2(N-1)`` increments, ``3N`` unknowns).
 Optionally the states at ``k`` equally spaced times are returned
 (``samples``), so period means need no extra flows.
 """
@@ -95,6 +99,7 @@ def flow_tangent(
     samples: int = 0,
     tol: float = 1e-12,
     fd: str = "central",
+    increments: str = "analytic",
     **stepper_kw: Any,
 ) -> FlowTangent:
     """``phi_T(u)``, ``Dphi_T(u) V``, ``dphi/dT`` and ``dphi/ds`` in one sweep.
@@ -119,10 +124,14 @@ def flow_tangent(
         must be a multiple of ``k``).
     tol, stepper_kw:
         As for :class:`BDF2Stepper`.
+    increments:
+        How each step's ``dR/dz`` gets its increment columns: ``"analytic"``
+        (exact, ``O(N^2)`` per step) or ``"fd"`` (differences of the residual,
+        ``O(N^3)`` per step; the previous path, kept for checking).
     fd:
-        Differences of the increment columns of each step's ``dR/dz``:
-        ``"central"`` (~1e-10 relative error) or ``"forward"`` (half the
-        residual evaluations, ~1e-8).
+        With ``increments="fd"``: ``"central"`` (~1e-10 relative error) or
+        ``"forward"`` differences (half the residual evaluations, ~1e-8).
+        Checked but unused with ``"analytic"``.
 
     Raises
     ------
@@ -132,6 +141,11 @@ def flow_tangent(
     """
     if fd not in ("central", "forward"):
         raise ValueError(f"flow_tangent: fd must be 'central' or 'forward', got {fd!r}")
+    if increments not in ("analytic", "fd"):
+        raise ValueError(
+            f"flow_tangent: increments must be 'analytic' or 'fd', got {increments!r}")
+    mode = (_kt.INC_ANALYTIC if increments == "analytic"
+            else _kt.INC_CENTRAL if fd == "central" else _kt.INC_FORWARD)
     n = default_steps(T) if steps is None else int(steps)
     if n < 1 or not (np.isfinite(T) and T > 0):
         raise ValueError(f"flow_tangent: need T > 0 and steps >= 1, got T={T!r}, steps={n!r}")
@@ -195,7 +209,7 @@ def flow_tangent(
                 "smooth there, so it has no tangent (use more steps)")
         _k._step_setup(k, st.dt, st.par, coef, scale)
         _kt.tangent_step(st._zp, qk, xk, xkm1, uk, coef, par, dpar, ph.flags, tz, tr,
-                         scale, dth, dx, dxm1, du, ddt, ds, fd == "central")
+                         scale, dth, dx, dxm1, du, ddt, ds, mode)
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular step Jacobian)")
     U1 = state_from_frames(st._q)

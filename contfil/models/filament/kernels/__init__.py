@@ -30,6 +30,10 @@ analogues ``planar_configuration``, ``solve_constraints_planar``,
 matrix-free). ``bdf2_residual``, ``bdf2_jacobian``, ``bdf2_step``: the BDF2
 step (residual, approximate Jacobian, Broyden loop and stepping).
 ``quaternion.dexp_matrix(u, inverse)``: the 3x3 matrix of ``dexp``/``dexp_inv``.
+``bdf2_tangent``: the tangent-linear of one step, with the exact derivatives
+of ``rpy_derivative`` (``rpy_apply_jacobian(X, a, eta, F, T) -> (6N, 3N)``,
+``d/dX (M [F; T])``) and ``frame_jacobian`` (velocities in the frames:
+elastic moments, squirming, follower and constraint loads).
 Units: L = 1, K_B = 1, eta = 1.
 """
 

@@ -13,22 +13,27 @@ with ``dth^k`` the spatial rotation vectors perturbing the frames ``q^k``
 
 - ``dR/dz``: the load columns are exact (:func:`load_columns`: ``R`` is
   affine in the loads at fixed frames, the mobility at the step's positions
-  and ``dexp_inv(u, .)`` are exactly the ones of the residual); the
-  ``u`` columns (frames move: mobility, positions, squirming, elastic
-  torques all change) are central differences of the compiled residual,
-  step :data:`FD_H` (error ~1e-10 relative, measured in the tests);
+  and ``dexp_inv(u, .)`` are exactly the ones of the residual). The ``u``
+  columns (frames move: mobility, positions, squirming, elastic and
+  constraint torques, follower forces all change) are exact too:
+  ``J_u = G dexp(u) + E`` with ``G = dR/dth`` the derivative in spatial
+  rotations of the new frames (:func:`residual_frame_jacobian`, built on
+  :mod:`.frame_jacobian` and :mod:`.rpy_derivative`, ``O(N^2)`` per step)
+  and ``E_n = I - g dt d_u dexp_inv(u_n, Omega_n)`` the explicit ``u`` of
+  the orientation rows. The previous path, central (or forward)
+  differences of the compiled residual (step :data:`FD_H`, error ~1e-10
+  relative, ``O(N^3)`` per step), stays available as ``mode`` for checking;
 - ``dR/dth^k``: ``q_m^{k+1} = exp(u_m) q_m^k``, so a perturbation ``dth``
-  of ``q_m^k`` moves the new frame by ``Rot(u_m) dth``, the same as the
-  increment change ``du' = dexp(u_m)^{-1} Rot(u_m) dth`` except for the
-  explicit ``u`` of the orientation rows: ``dR/dth = (dR/du - E) du'/dth``,
-  ``E_n = I - g dt d_u dexp_inv(u_n, Omega_n)``;
+  of ``q_m^k`` rotates the new frame by ``Rot(u_m) dth`` at fixed ``u``:
+  ``dR/dth^k = G Rot(u)`` (with difference columns: ``(J_u - E)
+  dexp(u)^{-1} Rot(u)``, the same thing);
 - ``dR/dx^k = -a1/dL``, ``dR/dx^{k-1} = -a2/dL`` (position rows),
   ``dR/du^k = -b1`` (orientation rows): exact, linear;
 - ``dR/ddt`` at fixed physical unknowns: ``-g V/dL`` and ``-g
   dexp_inv(u, Omega)``;
 - ``dR/ds``: ``R`` is affine in the actuation strength (follower force and
-  squirming velocity are linear in it), so a central difference with a unit
-  step is exact up to round-off.
+  squirming velocity are linear in it), so ``dR/ds`` is ``-g dt D`` times
+  the velocities of the actuation alone at the strength step.
 
 ``dR/dz`` is factored once per step and all directions (the monodromy
 columns, ``d/dT`` through ``ddt = dT/steps``, ``d/ds``) are solved together.
@@ -51,7 +56,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .bdf2_jacobian import _load_jacobian
 from .bdf2_residual import (
     C_A1,
     C_A2,
@@ -63,10 +67,11 @@ from .bdf2_residual import (
     unpack_loads,
     velocities,
 )
-from .effects import F_HYDRO, HYD_RPY, P_A, P_DL, P_ETA
+from .effects import F_HYDRO, HYD_RPY, P_A, P_B1, P_DL, P_ETA, P_F, P_KB, P_KT
+from .frame_jacobian import velocity_frame_jacobian
 from .geometry import positions, tangents
-from .quaternion import dexp_inv, dexp_matrix, qexp, qrotmat
-from .rpy import rpy_mobility, self_mobilities
+from .quaternion import dexp_coefficients, dexp_inv, dexp_inv_du, qexp, qrotmat
+from .rpy import local_mobility, rpy_mobility
 
 #: Central-difference step (radians) of the increment columns of dR/dz:
 #: ~eps^(1/3), the optimum of a central difference of an O(1) function.
@@ -74,8 +79,9 @@ FD_H = 5e-6
 #: Forward-difference step (the cheaper option, one residual per column):
 #: ~sqrt(eps), error ~1e-8 relative.
 FD_H_FORWARD = 2e-8
-#: Step of the central difference of dexp_inv in u (a 3-vector closed form).
-FD_H_DEXP = 1e-5
+#: How the increment columns of dR/dz are formed (``mode`` of :func:`step_matrices`):
+#: exactly, or by central / forward differences of the residual (the old path, for checks).
+INC_ANALYTIC, INC_CENTRAL, INC_FORWARD = 0, 1, 2
 
 
 @njit(cache=True)
@@ -103,8 +109,23 @@ def _segment_blocks(zf: np.ndarray, N: int) -> tuple[np.ndarray, np.ndarray, np.
     for m in range(N - 1):
         for k in range(3):
             u[k] = zf[3 * m + k]
-        B[m] = dexp_matrix(u, False)
-        A[m] = dexp_matrix(u, True)
+        th2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2]
+        a, b, c = dexp_coefficients(th2)
+        # [u]x and [u]x^2 = u u^T - |u|^2 I: B = I + a [u]x + b [u]x^2,
+        # A = I - [u]x / 2 + c [u]x^2 (no per-call allocations as in dexp_matrix)
+        for i in range(3):
+            for j in range(3):
+                s2 = u[i] * u[j] - (th2 if i == j else 0.0)
+                d = 1.0 if i == j else 0.0
+                B[m, i, j] = d + b * s2
+                A[m, i, j] = d + c * s2
+        for i in range(3):
+            i1, i2 = (i + 1) % 3, (i + 2) % 3
+            # [u]x[i, i1] = -u[i2], [u]x[i, i2] = u[i1]
+            B[m, i, i1] -= a * u[i2]
+            B[m, i, i2] += a * u[i1]
+            A[m, i, i1] += 0.5 * u[i2]
+            A[m, i, i2] -= 0.5 * u[i1]
         Rt[m] = qrotmat(qexp(u))
     return B, A, Rt
 
@@ -124,6 +145,14 @@ def _reduced_block(blocks: np.ndarray, zmap: np.ndarray, nu: int) -> np.ndarray:
 
 
 @njit(cache=True)
+def dense_mobility(X: np.ndarray, par: np.ndarray, flags: np.ndarray) -> np.ndarray:
+    """The (6N, 6N) mobility matrix at ``X`` the residual applies matrix-free."""
+    if flags[F_HYDRO] == HYD_RPY:
+        return rpy_mobility(X, par[P_A], par[P_ETA])
+    return local_mobility(X.shape[0], par[P_A], par[P_ETA])
+
+
+@njit(cache=True)
 def load_columns(
     zf: np.ndarray,
     qk: np.ndarray,
@@ -139,35 +168,70 @@ def load_columns(
 
     ``R`` is affine in the loads at fixed frames: ``dR/dz_load = -g dt D M
     G_load`` with the mobility ``M`` at the step's positions, ``D =
-    blockdiag(I/dL, dexp_inv(u_n))`` and ``G_load`` the load incidence of
-    :func:`~.bdf2_jacobian._load_jacobian` (only its load columns are
-    multiplied, not the whole ``6N x 6N`` matrix).
+    blockdiag(I/dL, dexp_inv(u_n))`` and ``G_load`` the (sparse) load
+    incidence of :mod:`.forces` (the load columns of
+    :func:`~.bdf2_jacobian._load_jacobian`), applied column by column.
     """
     N = qk.shape[0]
+    q = np.empty((N, 4))
+    frames_at(zf, qk, q)
+    t = tangents(q)
+    M = dense_mobility(positions(t, par[P_DL]), par, flags)
+    _, A, _ = _segment_blocks(zf, N)
+    return _load_columns(zf, t, coef, par, zmap, rmap, scale, nu, M, A)
+
+
+@njit(cache=True)
+def _load_columns(
+    zf: np.ndarray,
+    t: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    nu: int,
+    M: np.ndarray,
+    A: np.ndarray,
+) -> np.ndarray:
+    """:func:`load_columns` at the step's tangents ``t``, dense mobility ``M``
+    and ``dexp_inv(u_m)`` blocks ``A`` (N-1, 3, 3)."""
+    N = t.shape[0]
     nz = zmap.shape[0]
     nl = nz - nu
     dL = par[P_DL]
     gdt = coef[C_G] * coef[C_DT]
-    q = np.empty((N, 4))
-    frames_at(zf, qk, q)
-    t = tangents(q)
-    Lam, _, _ = unpack_loads(zf, N)
-    G = _load_jacobian(q, t, Lam, par, scale[3 * (N - 1)], scale[6 * N - 1])
-    Gl = np.empty((6 * N, nl))
-    for i in range(6 * N):
-        for j in range(nl):
-            Gl[i, j] = G[i, zmap[nu + j]]
-    if flags[F_HYDRO] == HYD_RPY:
-        MG = rpy_mobility(positions(t, dL), par[P_A], par[P_ETA]) @ Gl
-    else:
-        mt, mr = self_mobilities(par[P_A], par[P_ETA])
-        MG = Gl.copy()
-        for i in range(3 * N):
-            for j in range(nl):
-                MG[i, j] *= mt
-                MG[3 * N + i, j] *= mr
+    # M times the load incidence, column by column: each load touches at
+    # most two segments (O(N) per column instead of a dense 6N x 6N product).
+    # Lam_j (units sF): F_j += e_k, F_{j+1} -= e_k, T_n += dL/2 t_n x e_k
+    # (n = j, j+1); Fc: F_0 += e_k; Tc (units sT): T_0 += e_k.
+    sF, sT = scale[3 * (N - 1)], scale[6 * N - 1]
+    h = 0.5 * dL
+    oL = 3 * (N - 1)
+    RT = 3 * N
+    MG = np.empty((6 * N, nl))
+    for jj in range(nl):
+        col = zmap[nu + jj]
+        if col < 6 * (N - 1):
+            j, k = (col - oL) // 3, (col - oL) % 3
+            k1, k2 = (k + 1) % 3, (k + 2) % 3
+            # t x e_k has components: [k1] = t[k2], [k2] = -t[k1]
+            a1, a2 = h * t[j, k2], -h * t[j, k1]
+            b1, b2 = h * t[j + 1, k2], -h * t[j + 1, k1]
+            for i in range(6 * N):
+                MG[i, jj] = sF * (M[i, 3 * j + k] - M[i, 3 * j + 3 + k]
+                                  + a1 * M[i, RT + 3 * j + k1] + a2 * M[i, RT + 3 * j + k2]
+                                  + b1 * M[i, RT + 3 * j + 3 + k1]
+                                  + b2 * M[i, RT + 3 * j + 3 + k2])
+        elif col < 6 * N - 3:
+            k = col - 6 * (N - 1)
+            for i in range(6 * N):
+                MG[i, jj] = sF * M[i, k]
+        else:
+            k = col - (6 * N - 3)
+            for i in range(6 * N):
+                MG[i, jj] = sT * M[i, RT + k]
     out = np.empty((nz, nl))
-    u = np.zeros(3)
     for i in range(nz):
         r = rmap[i]
         if r < 3 * N:
@@ -179,14 +243,86 @@ def load_columns(
                 for j in range(nl):
                     out[i, j] = -gdt * MG[r, j]
             else:
-                for k in range(3):
-                    u[k] = zf[3 * (n - 1) + k]
-                A = dexp_matrix(u, True)
+                An = A[n - 1]
                 for j in range(nl):
-                    out[i, j] = -gdt * (A[c, 0] * MG[3 * N + 3 * n, j]
-                                        + A[c, 1] * MG[3 * N + 3 * n + 1, j]
-                                        + A[c, 2] * MG[3 * N + 3 * n + 2, j])
+                    out[i, j] = -gdt * (An[c, 0] * MG[3 * N + 3 * n, j]
+                                        + An[c, 1] * MG[3 * N + 3 * n + 1, j]
+                                        + An[c, 2] * MG[3 * N + 3 * n + 2, j])
     return out
+
+
+@njit(cache=True)
+def residual_frame_jacobian(
+    zf: np.ndarray,
+    q: np.ndarray,
+    t: np.ndarray,
+    X: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    M: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    nu: int,
+    A: np.ndarray,
+) -> np.ndarray:
+    """``dR/dth`` (nz, nu): the selected scaled residual rows ``rmap`` against
+    spatial rotations of the new frames (components ``zmap[:nu]``, segments
+    1..N-1) at fixed loads, exact.
+
+    Position rows ``(dX_n - g dt dV_n)/dL``, orientation rows ``-g dt
+    dexp_inv(u_n) dOmega_n`` (``-g dt dOmega_0`` for the clamped segment);
+    ``dX`` by the robot arm, ``d[V; Omega]`` by
+    :func:`.frame_jacobian.velocity_frame_jacobian` (``M``: the dense
+    mobility at ``X``; ``A``: the ``dexp_inv(u_m)`` blocks), evaluated on
+    the selected rows and components only (``dexp_inv(u_n)`` is restricted
+    to the selected components, exact because the block is invariant). The
+    explicit ``u`` of the orientation rows is not part of it (``E`` in
+    :func:`step_matrices`).
+    """
+    N = q.shape[0]
+    nz = rmap.shape[0]
+    dL = par[P_DL]
+    gdt = coef[C_G] * coef[C_DT]
+    Lam, Fc, Tc = unpack_loads(zf, N)
+    rmask = np.zeros(6 * N, dtype=np.bool_)
+    for i in range(nz):
+        rmask[rmap[i]] = True
+    cmask = np.zeros(3, dtype=np.bool_)
+    for j in range(nu):
+        cmask[zmap[j] % 3] = True
+    W = velocity_frame_jacobian(q, t, X, Lam, Fc, Tc, par, flags, M, rmask, cmask)
+    G = np.empty((nz, nu))
+    R = 3 * N
+    for i in range(nz):
+        r = rmap[i]
+        if r < R:
+            n, k = r // 3, r % 3
+            for j in range(nu):
+                G[i, j] = -gdt / dL * W[r, zmap[j]]
+                # robot arm: dX_n/dth_m / dL = w_nm C_m, w = 1 (n > m), 1/2 (n = m)
+                m = zmap[j] // 3 + 1
+                c = zmap[j] % 3
+                if m <= n and k != c:
+                    w = 0.5 if n == m else 1.0
+                    # C_m = -[t_m]x: C[k, c] = eps_kcl t_l
+                    l_ = 3 - k - c
+                    sg = 1.0 if (k - c) % 3 == 2 else -1.0  # eps_{k c l} = +1 iff (k, c, l) cyclic
+                    G[i, j] += w * sg * t[m, l_]
+        else:
+            n, k = (r - R) // 3, (r - R) % 3
+            if n == 0:
+                for j in range(nu):
+                    G[i, j] = -gdt * W[r, zmap[j]]
+            else:
+                An = A[n - 1]
+                for j in range(nu):
+                    acc = 0.0
+                    for kk in range(3):
+                        if rmask[R + 3 * n + kk]:
+                            acc += An[k, kk] * W[R + 3 * n + kk, zmap[j]]
+                    G[i, j] = -gdt * acc
+    return G
 
 
 @njit(cache=True)
@@ -208,7 +344,7 @@ def dpositions(t: np.ndarray, dth: np.ndarray, dL: float) -> np.ndarray:
 
 
 @njit(cache=True)
-def step_matrices(
+def _step_system(
     zf: np.ndarray,
     qk: np.ndarray,
     xk: np.ndarray,
@@ -222,19 +358,10 @@ def step_matrices(
     rmap: np.ndarray,
     scale: np.ndarray,
     want_p: bool,
-    central: bool = True,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(J, Jth, c_dt, c_s)`` of a converged step (module docstring).
-
-    ``zf`` is the step's physical full unknown vector; ``zmap``/``rmap``
-    (full indices, increments first / position rows first) select the
-    tangent system, which may differ from the stepper's own (e.g. the
-    out-of-plane block along a planar orbit). ``J = dR/dz`` in the scaled
-    selected unknowns (nz, nz), ``Jth = dR/dth^k`` (nz, nu), ``c_dt =
-    dR/ddt`` and ``c_s = dR/ds`` (nz,; zero unless ``want_p``), ``dpar = d
-    par / ds``. ``central=False``: forward differences for the increment
-    columns (half the residuals, ~1e-8 instead of ~1e-10 relative error).
-    """
+    mode: int = INC_ANALYTIC,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`step_matrices` plus what the propagation reuses: the reduced
+    ``dexp(u)`` and ``Rot(u)`` blocks and the new tangents."""
     N = qk.shape[0]
     nz = zmap.shape[0]
     nu, _ = reduced_counts(zmap, rmap, N)
@@ -247,48 +374,95 @@ def step_matrices(
     z = np.empty(6 * N)
     for i in range(6 * N):
         z[i] = zf[i] / scale[i]
-    J = np.empty((nz, nz))
-    Jl = load_columns(zf, qk, coef, par, flags, zmap, rmap, scale, nu)
-    for i in range(nz):
-        for j in range(nz - nu):
-            J[i, nu + j] = Jl[i, j]
+    # the step's configuration, loads and dense mobility (shared by the load
+    # columns and the exact increment columns)
     q = np.empty((N, 4))
-    X = np.empty((N, 3))
-    rfull = np.empty(6 * N)
-    rp = np.empty(6 * N)
-    rm = np.empty(6 * N)
-    zp = z.copy()
-    if not central:
-        residual(z, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
-    for j in range(nu):
-        c = zmap[j]
-        if central:
-            zp[c] = z[c] + FD_H
-            residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
-            zp[c] = z[c] - FD_H
-            residual(zp, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
-            zp[c] = z[c]
-            for i in range(nz):
-                J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / (2.0 * FD_H)
-        else:
-            zp[c] = z[c] + FD_H_FORWARD
-            residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, q, X, rfull)
-            zp[c] = z[c]
-            for i in range(nz):
-                J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / FD_H_FORWARD
-    # velocities at the converged step
     frames_at(zf, qk, q)
     t = tangents(q)
     Xn = positions(t, dL)
     Lam, Fc, Tc = unpack_loads(zf, N)
+    Mob = dense_mobility(Xn, par, flags)
+    J = np.empty((nz, nz))
+    B, A, Rt = _segment_blocks(zf, N)
+    Jl = _load_columns(zf, t, coef, par, zmap, rmap, scale, nu, Mob, A)
+    for i in range(nz):
+        for j in range(nz - nu):
+            J[i, nu + j] = Jl[i, j]
     V, Om = velocities(q, t, Xn, Lam, Fc, Tc, par, flags)
     rinv = -np.ones(6 * N, dtype=np.int64)
     for i in range(nz):
         rinv[rmap[i]] = i
-    # dR/ddt at fixed physical unknowns
-    cfull = np.empty(6 * N)
+    # explicit u dependence E of the orientation rows: I - g dt d_u dexp_inv(u, Omega)
+    # at fixed Omega (restricted to the selected components of each segment)
+    E = np.zeros((nz, nu))
     u = np.empty(3)
     w = np.empty(3)
+    for j in range(nu):
+        m = zmap[j] // 3  # segment m + 1
+        c = zmap[j] % 3
+        for k in range(3):
+            u[k] = zf[3 * m + k]
+            w[k] = Om[m + 1, k]
+        D = dexp_inv_du(u, w)
+        for r in range(3):
+            ii = rinv[3 * N + 3 * (m + 1) + r]
+            if ii < 0:
+                continue
+            v = -gdt * D[r, c]
+            if r == c:
+                v += 1.0
+            E[ii, j] = v
+    Rr = _reduced_block(Rt, zmap, nu)
+    Br = _reduced_block(B, zmap, nu)
+    rp = np.empty(6 * N)
+    rm = np.empty(6 * N)
+    if mode == INC_ANALYTIC:
+        # R depends on u through the new frames (th = dexp(u) du) and
+        # explicitly (E): J_u = G B + E, and dR/dth^k = G Rot(u)
+        Gs = residual_frame_jacobian(zf, q, t, Xn, coef, par, flags, Mob, zmap, rmap, nu, A)
+        Ju = Gs @ Br
+        for i in range(nz):
+            for j in range(nu):
+                J[i, j] = Ju[i, j] + E[i, j]
+        Jth = Gs @ Rr
+    else:
+        qw = np.empty((N, 4))
+        X = np.empty((N, 3))
+        rfull = np.empty(6 * N)
+        zp = z.copy()
+        central = mode == INC_CENTRAL
+        if not central:
+            residual(z, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, qw, X, rfull)
+        for j in range(nu):
+            c = zmap[j]
+            if central:
+                zp[c] = z[c] + FD_H
+                residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, qw, X,
+                         rfull)
+                zp[c] = z[c] - FD_H
+                residual(zp, rm, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, qw, X,
+                         rfull)
+                zp[c] = z[c]
+                for i in range(nz):
+                    J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / (2.0 * FD_H)
+            else:
+                zp[c] = z[c] + FD_H_FORWARD
+                residual(zp, rp, qk, xk, xkm1, uk, coef, par, flags, idm, idm, scale, qw, X,
+                         rfull)
+                zp[c] = z[c]
+                for i in range(nz):
+                    J[i, j] = (rp[rmap[i]] - rm[rmap[i]]) / FD_H_FORWARD
+        # dR/dth^k = (J_u - E) dexp(u)^-1 Rot(u)
+        ARt = np.empty((N - 1, 3, 3))
+        for m in range(N - 1):
+            ARt[m] = A[m] @ Rt[m]
+        Ju = np.empty((nz, nu))
+        for i in range(nz):
+            for j in range(nu):
+                Ju[i, j] = J[i, j] - E[i, j]
+        Jth = Ju @ _reduced_block(ARt, zmap, nu)
+    # dR/ddt at fixed physical unknowns
+    cfull = np.empty(6 * N)
     for n in range(N):
         for k in range(3):
             cfull[3 * n + k] = -g * V[n, k] / dL
@@ -305,47 +479,66 @@ def step_matrices(
     c_dt = np.empty(nz)
     for i in range(nz):
         c_dt[i] = cfull[rmap[i]]
-    # explicit u dependence E of the orientation rows, then Jth = (J_u - E) A Rot
-    E = np.zeros((nz, nu))
-    up = np.empty(3)
-    for j in range(nu):
-        m = zmap[j] // 3  # segment m + 1
-        c = zmap[j] % 3
-        for k in range(3):
-            u[k] = zf[3 * m + k]
-            w[k] = Om[m + 1, k]
-            up[k] = u[k]
-        up[c] = u[c] + FD_H_DEXP
-        dp_ = dexp_inv(up, w)
-        up[c] = u[c] - FD_H_DEXP
-        dm_ = dexp_inv(up, w)
-        for r in range(3):
-            ii = rinv[3 * N + 3 * (m + 1) + r]
-            if ii < 0:
-                continue
-            v = -gdt * (dp_[r] - dm_[r]) / (2.0 * FD_H_DEXP)
-            if r == c:
-                v += 1.0
-            E[ii, j] = v
-    B, A, Rt = _segment_blocks(zf, N)
-    ARt = np.empty((N - 1, 3, 3))
-    for m in range(N - 1):
-        ARt[m] = A[m] @ Rt[m]
-    Mr = _reduced_block(ARt, zmap, nu)
-    Ju = np.empty((nz, nu))
-    for i in range(nz):
-        for j in range(nu):
-            Ju[i, j] = J[i, j] - E[i, j]
-    Jth = Ju @ Mr
     c_s = np.zeros(nz)
     if want_p:
-        # R is affine in the strength: a unit central difference is exact
-        pp = par + dpar
-        pm = par - dpar
-        residual(z, rp, qk, xk, xkm1, uk, coef, pp, flags, idm, idm, scale, q, X, rfull)
-        residual(z, rm, qk, xk, xkm1, uk, coef, pm, flags, idm, idm, scale, q, X, rfull)
+        # R is affine in the strength, through the active loads only: dR/ds
+        # = -g dt D d[V; Omega]/ds, the velocities of the actuation alone
+        # (no elasticity, no constraint loads) at the strength step dpar
+        pa = par.copy()
+        pa[P_KB] = 0.0
+        pa[P_KT] = 0.0
+        pa[P_F] = dpar[P_F]
+        pa[P_B1] = dpar[P_B1]
+        z3 = np.zeros(3)
+        Vs, Os = velocities(q, t, Xn, np.zeros((N - 1, 3)), z3, z3, pa, flags)
         for i in range(nz):
-            c_s[i] = 0.5 * (rp[rmap[i]] - rm[rmap[i]])
+            r = rmap[i]
+            if r < 3 * N:
+                c_s[i] = -gdt / dL * Vs[r // 3, r % 3]
+            else:
+                n, k = (r - 3 * N) // 3, (r - 3 * N) % 3
+                if n == 0:
+                    c_s[i] = -gdt * Os[0, k]
+                else:
+                    for kk in range(3):
+                        u[kk] = zf[3 * (n - 1) + kk]
+                        w[kk] = Os[n, kk]
+                    c_s[i] = -gdt * dexp_inv(u, w)[k]
+    return J, Jth, c_dt, c_s, Br, Rr, t
+
+
+@njit(cache=True)
+def step_matrices(
+    zf: np.ndarray,
+    qk: np.ndarray,
+    xk: np.ndarray,
+    xkm1: np.ndarray,
+    uk: np.ndarray,
+    coef: np.ndarray,
+    par: np.ndarray,
+    dpar: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    want_p: bool,
+    mode: int = INC_ANALYTIC,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(J, Jth, c_dt, c_s)`` of a converged step (module docstring).
+
+    ``zf`` is the step's physical full unknown vector; ``zmap``/``rmap``
+    (full indices, increments first / position rows first) select the
+    tangent system, which may differ from the stepper's own (e.g. the
+    out-of-plane block along a planar orbit). ``J = dR/dz`` in the scaled
+    selected unknowns (nz, nz), ``Jth = dR/dth^k`` (nz, nu), ``c_dt =
+    dR/ddt`` and ``c_s = dR/ds`` (nz,; zero unless ``want_p``), ``dpar = d
+    par / ds``. ``mode``: the increment columns exactly
+    (:data:`INC_ANALYTIC`, :func:`residual_frame_jacobian`) or by central
+    (:data:`INC_CENTRAL`, ~1e-10 relative error) or forward
+    (:data:`INC_FORWARD`, ~1e-8) differences of the residual (for checking).
+    """
+    J, Jth, c_dt, c_s, _, _, _ = _step_system(zf, qk, xk, xkm1, uk, coef, par, dpar, flags,
+                                              zmap, rmap, scale, want_p, mode)
     return J, Jth, c_dt, c_s
 
 
@@ -369,7 +562,7 @@ def tangent_step(
     du: np.ndarray,
     ddt: np.ndarray,
     ds: np.ndarray,
-    central: bool = True,
+    mode: int = INC_ANALYTIC,
 ) -> None:
     """Propagate the batched tangents over one converged step, in place.
 
@@ -377,7 +570,7 @@ def tangent_step(
     ``dxm1`` (npos, nd): position perturbations at k and k-1; ``du`` (nu,
     nd): perturbation of the increments ``u^k``; ``ddt``, ``ds`` (nd,): the
     step-size and strength perturbation of each direction. On return they
-    hold the perturbations at step k+1. ``central``: see :func:`step_matrices`.
+    hold the perturbations at step k+1. ``mode``: see :func:`step_matrices`.
     """
     N = qk.shape[0]
     nz = zmap.shape[0]
@@ -389,8 +582,8 @@ def tangent_step(
     for d in range(nd):
         if ds[d] != 0.0:
             want_p = True
-    J, Jth, c_dt, c_s = step_matrices(zf, qk, xk, xkm1, uk, coef, par, dpar, flags,
-                                      zmap, rmap, scale, want_p, central)
+    J, Jth, c_dt, c_s, Br, Rr, t = _step_system(zf, qk, xk, xkm1, uk, coef, par, dpar, flags,
+                                                zmap, rmap, scale, want_p, mode)
     rhs = Jth @ dth
     for i in range(npos):
         for d in range(nd):
@@ -408,14 +601,8 @@ def tangent_step(
             rhs[i, d] += c_dt[i] * ddt[d] + c_s[i] * ds[d]
     dz = -np.linalg.solve(J, rhs)
     # new frames: dth' = dexp(u) du' + Rot(u) dth
-    B, _, Rt = _segment_blocks(zf, N)
-    Br = _reduced_block(B, zmap, nu)
-    Rr = _reduced_block(Rt, zmap, nu)
     dun = dz[:nu, :].copy()  # increments are unscaled unknowns
     dthn = Br @ dun + Rr @ dth
-    q = np.empty((N, 4))
-    frames_at(zf, qk, q)
-    t = tangents(q)
     full = np.zeros((N, 3))
     for d in range(nd):
         for j in range(nu):

@@ -174,6 +174,31 @@ def dexp_inv(u: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def dexp_coefficients(th2: float) -> tuple[float, float, float]:
+    """``(a, b, c)`` of :func:`dexp` (``v + a u x v + b u x (u x v)``) and
+    :func:`dexp_inv` (``v - u x v / 2 + c u x (u x v)``) at ``th2 = |u|^2``,
+    the same formulas (series below the same threshold)."""
+    th = np.sqrt(th2)
+    if th < _SERIES_TH:
+        a = 0.5 - th2 / 24.0 + th2 * th2 / 720.0 - th2**3 / 40320.0 + th2**4 / 3628800.0
+        b = 1.0 / 6.0 - th2 / 120.0 + th2 * th2 / 5040.0 - th2**3 / 362880.0 + th2**4 / 39916800.0
+        c = (
+            1.0 / 12.0
+            + th2 / 720.0
+            + th2 * th2 / 30240.0
+            + th2**3 / 1209600.0
+            + th2**4 / 47900160.0
+        )
+    else:
+        sh = np.sin(0.5 * th)
+        a = 2.0 * sh * sh / th2
+        b = (th - np.sin(th)) / (th2 * th)
+        h = 0.5 * th
+        c = (1.0 - h * np.cos(h) / np.sin(h)) / th2
+    return a, b, c
+
+
+@njit(cache=True)
 def dexp_matrix(u: np.ndarray, inverse: bool) -> np.ndarray:
     """Matrix of ``v -> dexp(u, v)`` (or of ``dexp_inv(u, .)`` when ``inverse``)."""
     A = np.empty((3, 3))
@@ -185,3 +210,53 @@ def dexp_matrix(u: np.ndarray, inverse: bool) -> np.ndarray:
         for i in range(3):
             A[i, k] = c[i]
     return A
+
+
+@njit(cache=True)
+def dexp_inv_du(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Derivative (3x3) of :func:`dexp_inv` ``(u, v)`` in ``u`` at fixed ``v``.
+
+    With ``f = v - u x v / 2 + c(th) u x (u x v)``, ``u x (u x v) = u (u.v) -
+    v (u.u)``: ``df/du = [v]x / 2 + c ((u.v) I + u v^T - 2 v u^T) + (u x (u x
+    v)) (dc/du)^T``, ``dc/du = c'(th) u/th`` (series in ``th^2`` below the
+    same threshold as :func:`dexp_inv`).
+    """
+    th2 = u[0] * u[0] + u[1] * u[1] + u[2] * u[2]
+    th = np.sqrt(th2)
+    if th < _SERIES_TH:
+        c = (
+            1.0 / 12.0
+            + th2 / 720.0
+            + th2 * th2 / 30240.0
+            + th2**3 / 1209600.0
+            + th2**4 / 47900160.0
+        )
+        # dc/du = 2 u dc/d(th^2)
+        g = 2.0 * (1.0 / 720.0 + 2.0 * th2 / 30240.0 + 3.0 * th2 * th2 / 1209600.0
+                   + 4.0 * th2**3 / 47900160.0)
+    else:
+        h = 0.5 * th
+        sh = np.sin(h)
+        n = 1.0 - h * np.cos(h) / sh
+        c = n / th2
+        dn = 0.5 * (h / (sh * sh) - np.cos(h) / sh)  # dn/dth
+        g = (dn / th2 - 2.0 * n / (th2 * th)) / th  # (dc/dth)/th
+    uv = u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+    uuv = np.empty(3)
+    for i in range(3):
+        uuv[i] = u[i] * uv - v[i] * th2
+    D = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            d = c * (u[i] * v[j] - 2.0 * v[i] * u[j]) + g * uuv[i] * u[j]
+            if i == j:
+                d += c * uv
+            D[i, j] = d
+    # [v]x / 2: rows (0, -v2, v1), (v2, 0, -v0), (-v1, v0, 0)
+    D[0, 1] -= 0.5 * v[2]
+    D[0, 2] += 0.5 * v[1]
+    D[1, 0] += 0.5 * v[2]
+    D[1, 2] -= 0.5 * v[0]
+    D[2, 0] -= 0.5 * v[1]
+    D[2, 1] += 0.5 * v[0]
+    return D
