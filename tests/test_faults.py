@@ -372,3 +372,44 @@ def test_a_signal_after_the_work_is_done_does_not_kill_the_exit(tmp_path: Path) 
     before = signal.getsignal(signal.SIGTERM)
     assert cli.main(["show", str(tmp_path / "missing")]) == 2
     assert signal.getsignal(signal.SIGTERM) is before
+
+
+def test_interrupt_swallowed_by_a_c_callback_prints_no_traceback(monkeypatch) -> None:
+    """An interrupt that lands while C code has called back into Python
+    (llvmlite does while numba compiles) cannot propagate; Python hands it to
+    ``sys.unraisablehook``, which prints "Exception ignored ..." with a
+    traceback. Inside a run it is silenced (the stop flag holds it); any other
+    swallowed error still reaches the hook."""
+    import ctypes
+    import signal as _signal
+    import sys as _sys
+
+    from contfil.explore.stop import STOP, Interrupted, stop_on_signals
+
+    seen: list[BaseException] = []
+    monkeypatch.setattr(_sys, "unraisablehook", lambda info: seen.append(info.exc_value))
+
+    def call_back(fn) -> None:
+        # libc's qsort calls the comparator from C: an exception raised in it
+        # is "unraisable".
+        cmp_t = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p)
+        arr = (ctypes.c_int * 2)(2, 1)
+        ctypes.CDLL(None).qsort(arr, 2, ctypes.sizeof(ctypes.c_int), cmp_t(fn))
+
+    def interrupted(a, b):
+        STOP.request(_signal.SIGINT)
+        raise Interrupted(_signal.SIGINT)
+
+    def broken(a, b):
+        raise ValueError("a real bug in a callback")
+
+    with stop_on_signals() as stop:
+        call_back(interrupted)
+        assert stop.requested and seen == []
+        call_back(broken)
+        assert len(seen) == 1 and isinstance(seen[0], ValueError)
+    assert not STOP.requested
+    # Outside a run the hook is the one before it: an interrupt there shows.
+    call_back(interrupted)
+    assert len(seen) == 2 and isinstance(seen[1], Interrupted)
+    STOP.reset()

@@ -21,6 +21,7 @@
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -197,12 +198,25 @@ def stop_on_signals(raise_now: bool = True) -> Iterator[StopRequest]:
         if raise_now:
             raise Interrupted(signum)
 
+    previous_hook = sys.unraisablehook
+
+    def unraisable(info: Any) -> None:
+        # The interrupt raised inside a C callback (llvmlite calls back into
+        # Python while numba compiles a kernel) cannot propagate: Python would
+        # print it as "Exception ignored ..." with a traceback. The flag has
+        # recorded it and stops the run at the explorer's next check.
+        if isinstance(info.exc_value, KeyboardInterrupt) and STOP.requested:
+            return
+        previous_hook(info)
+
     STOP.reset()
 
     old = {s: signal.signal(s, handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    sys.unraisablehook = unraisable
     try:
         yield STOP
     finally:
         for s, h in old.items():
             signal.signal(s, h)
+        sys.unraisablehook = previous_hook
         STOP.reset()  # a later run in this process (a notebook) starts unstopped
