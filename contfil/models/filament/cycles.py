@@ -59,8 +59,9 @@ class FixedStepFlow:
     the subspace and its 3D stability use the same time step ``T/steps``.
     ``flow_calls`` counts time-stepper calls (the honest cost unit),
     ``tangent_calls`` the exact tangent sweeps (:meth:`flow_tangent`;
-    ``tangent_fd``: ``"central"`` or the cheaper ``"forward"`` differences of
-    each step's increment columns).
+    ``tangent_increments``: ``"analytic"`` (default) or ``"fd"``, the
+    difference columns of each step's increments kept for checking, with
+    ``tangent_fd`` ``"central"`` or ``"forward"``).
     """
 
     #: the shooting engine uses the exact tangent sweeps (see FilamentModel)
@@ -68,7 +69,7 @@ class FixedStepFlow:
 
     def __init__(
         self, model: FilamentModel, steps: int = STEPS_PER_PERIOD, tangent_fd: str = "central",
-        **stepper_kw: Any,
+        tangent_increments: str = "analytic", **stepper_kw: Any,
     ) -> None:
         if int(steps) < 1:
             raise ValueError(f"FixedStepFlow: steps must be >= 1, got {steps!r}")
@@ -76,6 +77,7 @@ class FixedStepFlow:
         self.steps = int(steps)
         self.stepper_kw = dict(stepper_kw)
         self.tangent_fd = tangent_fd
+        self.tangent_increments = tangent_increments
         self.flow_calls = 0
         self.tangent_calls = 0
         sym = model.symmetries
@@ -84,7 +86,7 @@ class FixedStepFlow:
             subs[name] = InvariantSubspace(
                 name, sub.embed, sub.project,
                 lambda sub=sub: type(self)(sub.reduced_model(), self.steps, self.tangent_fd,
-                                           **self.stepper_kw),
+                                           self.tangent_increments, **self.stepper_kw),
             )
         self.symmetries = Symmetries(list(sym.continuous), dict(sym.reflections), subs)
 
@@ -105,7 +107,8 @@ class FixedStepFlow:
         # period samples only where they fall on steps (else the caller flows)
         k = samples if samples and self.steps % samples == 0 else 0
         return self.base.flow_tangent(u, p, T, V, param_index=param_index, samples=k,
-                                      steps=self.steps, fd=self.tangent_fd, **self.stepper_kw)
+                                      steps=self.steps, fd=self.tangent_fd,
+                                      increments=self.tangent_increments, **self.stepper_kw)
 
 
 def planar(model: FilamentModel) -> FilamentModel:
