@@ -322,3 +322,26 @@ def test_resume_may_change_where_tasks_run(serial: Path, tmp_path: Path) -> None
                     progress=ProgressDisplay(enabled=False))
     assert res.n_computed_points == 0  # all read back: the spec was accepted as the same
     assert_same_run(run, serial)
+
+
+def _slow_double(x: int) -> int:
+    import time as _time
+
+    _time.sleep(1.0)
+    return 2 * x
+
+
+def test_task_cancelled_by_the_cluster_is_submitted_again(client) -> None:
+    """A task the cluster cancels on its own (a worker closing under it) is
+    computed again under a fresh key, not reported as a failure; a task is a
+    pure function of its inputs, so nothing changes but the key."""
+    from contfil.explore.distributed import DaskExecutor
+    from contfil.explore.scheduler import key_task, task_key, wait_result
+
+    ex = DaskExecutor(client)
+    handle = ex.submit(_slow_double, 21, key=task_key("T0007"))
+    first_key = handle.key
+    client.cancel([handle.future])  # not through the executor: "by the cluster"
+    assert wait_result(ex, handle, 0.2, lambda: None) == 42
+    assert handle.resubmitted == 1 and handle.key != first_key
+    assert key_task(handle.key) == "T0007"

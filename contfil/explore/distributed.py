@@ -19,6 +19,8 @@ Dask scheduler; a crash of the client loses the tasks in flight, and
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import importlib
 import logging
 import os
@@ -30,7 +32,14 @@ from pathlib import Path
 from typing import Any
 
 from contfil.errors import ContfilError
-from contfil.explore.scheduler import Executor, SerialExecutor, WorkersBusy, map_stored
+from contfil.explore.scheduler import (
+    Executor,
+    SerialExecutor,
+    WorkersBusy,
+    key_task,
+    map_stored,
+    task_key,
+)
 from contfil.store.atomic import atomic_write_json
 
 #: Name of the file in a run directory listing the tasks on each worker.
@@ -52,12 +61,32 @@ def _call_pickled(blob: bytes) -> Any:
     return fn(*args)
 
 
+class _DaskTask:
+    """A submitted task: its current Dask future and what it was made from,
+    so that a task the cluster cancelled on its own can be submitted again."""
+
+    def __init__(self, future: Any, blob: bytes, key: str) -> None:
+        self.future = future
+        self.blob = blob
+        self.key = key
+        self.resubmitted = 0
+
+    def done(self) -> bool:
+        return bool(self.future.done()) and self.future.status != "cancelled"
+
+
 class DaskExecutor:
     """:class:`~contfil.explore.scheduler.Executor` on a ``distributed.Client``.
 
     Arguments are pickled when a task is submitted (not later, in the
     client's network thread), so a task sees its inputs as they were then.
+    A task that the cluster cancels without being asked to (a worker closing
+    under it) is submitted again under a fresh key: a task is a pure
+    function of its inputs, so computing it again changes nothing.
     """
+
+    #: Times one task is submitted again before the run gives up on it.
+    MAX_RESUBMIT = 3
 
     def __init__(self, client: Any) -> None:
         self.client = client
@@ -67,27 +96,54 @@ class DaskExecutor:
         import cloudpickle
 
         blob = cloudpickle.dumps((fn, args), protocol=pickle.HIGHEST_PROTOCOL)
+        return _DaskTask(self._submit_blob(blob, key), blob, key)
+
+    def _submit_blob(self, blob: bytes, key: str) -> Any:
         # pure=False: a task computed again (a resume) is a new task.
         return self.client.submit(_call_pickled, blob, key=key, pure=False)
 
+    def _resubmit(self, task: _DaskTask) -> None:
+        if task.resubmitted >= self.MAX_RESUBMIT:
+            raise ContfilError(f"cluster: task {key_task(task.key)} was cancelled by the "
+                               f"cluster {task.resubmitted + 1} times; giving up")
+        task.resubmitted += 1
+        task.key = task_key(key_task(task.key))
+        task.future = self._submit_blob(task.blob, task.key)
+
     def result(self, handle: Any, timeout: float | None) -> tuple[bool, Any]:
+        fut = handle.future if isinstance(handle, _DaskTask) else handle
         try:
-            return True, handle.result(timeout=timeout)
+            return True, fut.result(timeout=timeout)
         except TimeoutError:
             return False, None
         except self._distributed.TimeoutError:  # older distributed: its own class
+            return False, None
+        except (concurrent.futures.CancelledError, asyncio.CancelledError, UnboundLocalError):
+            # A cancelled future raises CancelledError. When the wait for a
+            # result is itself cancelled (a worker closing under the task),
+            # distributed's sync() ends in an UnboundLocalError instead (seen
+            # with distributed 2026.8): the future may then still be pending
+            # (the scheduler moves the task), so look again at the next poll.
+            if not isinstance(handle, _DaskTask):
+                raise
+            if fut.status == "cancelled":
+                self._resubmit(handle)
             return False, None
 
     def wait_any(self, handles: Sequence[Any], timeout: float) -> None:
         if not handles:
             return
+        futs = [h.future if isinstance(h, _DaskTask) else h for h in handles]
         try:
-            self._distributed.wait(list(handles), timeout=timeout, return_when="FIRST_COMPLETED")
+            self._distributed.wait(futs, timeout=timeout, return_when="FIRST_COMPLETED")
         except (TimeoutError, self._distributed.TimeoutError):
             pass
+        for h in handles:
+            if isinstance(h, _DaskTask) and h.future.status == "cancelled":
+                self._resubmit(h)
 
     def cancel(self, handles: Iterable[Any]) -> None:
-        hs = list(handles)
+        hs = [h.future if isinstance(h, _DaskTask) else h for h in handles]
         if hs:
             self.client.cancel(hs)
 
