@@ -62,6 +62,42 @@ def _critical_vector(st: Stability, target: complex) -> dict[str, Any]:
     return out
 
 
+def trivial_accuracy(st: Stability) -> float:
+    """How far the trivial multipliers of ``st`` are from 1: the measured
+    accuracy of the multipliers near +1 (0 if not known).
+
+    Read from the Floquet solvers' record (``info["trivial_info"]
+    ["distance_from_one"]`` of shooting, ``info["trivial_distance"]`` of
+    collocation), else from the flagged values themselves.
+    """
+    info = st.info or {}
+    d = info.get("trivial_distance")
+    if d is None:
+        d = (info.get("trivial_info") or {}).get("distance_from_one")
+    if d is None and st.trivial is not None and np.any(st.trivial):
+        vals = np.asarray(st.values, dtype=complex)[np.asarray(st.trivial, dtype=bool)]
+        d = float(np.max(np.abs(vals - 1.0)))
+    d = float(d) if d is not None else 0.0
+    return d if np.isfinite(d) else 0.0
+
+
+def resolved_angle(st: Stability) -> float:
+    """Smallest ``|arg μ|`` at which a complex pair of ``st`` is resolved from +1.
+
+    A real multiplier near +1 next to the trivial ones (at a fold or branch
+    point of cycles: a double multiplier at 1 with a Jordan block) is split
+    by an error ``δ`` of the monodromy into ``1 ± √δ`` or ``1 ± i√δ``
+    (Puiseux: the eigenvalues of ``[[1, 1], [-δ, 1]]`` are ``1 ± i√δ``).
+    ``δ`` is measured by the trivial multipliers' distance from 1
+    (:func:`trivial_accuracy`), so a pair whose angle is below ``√δ`` is
+    not resolved from the 1:1 resonance: it is no torus (the fold or branch
+    point is its own event). Tip SF's QP1 had such pairs at ``1 ± 7e-4 i``
+    with trivial multipliers ~1e-5 from 1 (``√δ ≈ 3e-3``).
+    """
+    d = trivial_accuracy(st)
+    return float(np.sqrt(d)) if d > 0.0 else 0.0
+
+
 def _trivial_basis(st: Stability) -> Array | None:
     """Orthonormal real basis of the span of the trivial eigenvectors of ``st``."""
     if st.trivial is None or st.vectors is None or not np.any(st.trivial):

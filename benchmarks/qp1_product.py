@@ -1,0 +1,261 @@
+"""QP1 through the product: from beating's stored pitchfork to its end.
+
+What ``docs/quasiperiodic.md`` ("2b. QP1 in the product") describes, as one
+driver for the four paper models. The beating branch (shooting on the
+stepper) is not recomputed: its symmetry-breaking pitchfork (the
+``cycle_branch_point`` with event ``subspace_breaking`` on the beating
+branch) is read from the stored run ``branches/data/<model>/graph.json``.
+Then, as the explorer does at depth 2:
+
+- the beating problem is rebuilt as the double-Hopf switcher builds it
+  (``PeriodicOrbitProblem(model, p, steps=flow_steps_min,
+  subspace=<the model's invariant subspace>, period_means=8)``);
+- ``default_switchers().seeds(BPC, beating, problem)`` gives the first
+  relative periodic orbit (``cycles_leaving_subspace``);
+- ``branch_end_specs(seed)`` attaches the terminal events
+  (``SubspaceReentryEvent``, ``RotatingWaveCollapseEvent``);
+- an :class:`~contfil.explore.explorer.Explorer` (depth 0, the engine
+  continuer, ``engine_settings(spec)``) follows it into a run store under
+  ``--out`` (resumable: run again with the same ``--out``);
+- the branch and its special points are added to the stored graph and
+  ``join_ends()`` joins the end to whirling's torus.
+
+Usage::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/qp1_product.py --model tip_ff \\
+        --budget 900 --out /tmp/qp1/tip_ff
+
+Prints one line per point (parameter, 1/T, T, drift θ, θ/T,
+f_d = θ/(2πT), unstable multipliers) and ends with one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+# this checkout's contfil, not an installed one
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+from contfil.app.spec import load_spec
+from contfil.app.study import build_model, engine_settings
+from contfil.engine.branch import Branch, Point, SpecialPoint
+from contfil.engine.problems.shooting import PeriodicOrbitProblem
+from contfil.engine.switching.cycle_ends import branch_end_specs
+from contfil.explore.continuer import engine_continuer
+from contfil.explore.explorer import Explorer, ExplorerSettings
+from contfil.explore.stop import Interrupted, StopRequest
+from contfil.explore.switchers import PERIOD_MEANS, default_switchers
+from contfil.graph.branch_graph import BranchGraph
+from contfil.store.run_store import RunStore, run_state
+
+ROOT = Path(__file__).resolve().parent.parent
+MODELS = ("tip_sf", "tip_ff", "dis_sf", "dis_ff")
+
+
+def stored_pitchfork(graph: BranchGraph) -> tuple[str, SpecialPoint, str, Branch]:
+    """The beating branch's symmetry-breaking pitchfork in a stored graph:
+    ``(special id, point, branch id, branch)``."""
+    for sid, sp in graph.special_points.items():
+        if sp.kind != "cycle_branch_point" or sp.data.get("event") != "subspace_breaking":
+            continue
+        for bid in graph.branches_at(sid):
+            br = graph.branch(bid)
+            if br.kind == "periodic_orbit":
+                return sid, sp, bid, br
+    raise SystemExit("no subspace-breaking cycle_branch_point on a periodic_orbit branch "
+                     "in the stored graph")
+
+
+def beating_problem(model: Any, param: str, params: np.ndarray) -> PeriodicOrbitProblem:
+    """The beating problem as the double-Hopf switcher builds it (the
+    standing wave in the model's only invariant subspace, shot at the
+    model's advertised resolution, with period means)."""
+    subs = list(getattr(model.symmetries, "invariant_subspaces", {}) or {})
+    if len(subs) != 1:
+        raise SystemExit(f"expected one invariant subspace, the model has {subs}")
+    return PeriodicOrbitProblem(model, param, params, steps=int(model.flow_steps_min),
+                                subspace=subs[0], period_means=PERIOD_MEANS)
+
+
+def point_row(pt: Point) -> dict[str, float]:
+    """Frequencies and stability of one relative periodic orbit point."""
+    T = float(pt.extra["period"])
+    th = float(pt.extra.get("drift", 0.0))
+    row = {"p": float(pt.p), "f": 1.0 / T, "T": T, "theta": th, "theta_over_T": th / T,
+           "f_d": th / (2 * np.pi * T),
+           "n_unstable": -1 if pt.n_unstable is None else int(pt.n_unstable)}
+    if pt.eigenvalues is not None:
+        mu = np.asarray(pt.eigenvalues)
+        triv = (np.zeros(mu.size, bool) if pt.trivial is None
+                else np.asarray(pt.trivial, bool))
+        nt = mu[~triv]
+        if nt.size:
+            row["mu_lead"] = float(np.max(np.abs(nt)))
+    return row
+
+
+class PrintPoints:
+    """Observer: one line per accepted point."""
+
+    def __init__(self, t0: float) -> None:
+        self.t0 = t0
+
+    def notify(self, event: Any) -> None:
+        pt = getattr(event, "point", None)
+        if pt is None or "period" not in getattr(pt, "extra", {}):
+            return
+        r = point_row(pt)
+        sps = " ".join(f"[{s.kind} p={s.point.p:.4f}]" for s in event.specials)
+        print(f"{time.time() - self.t0:7.0f}s  p={r['p']:.5f}  1/T={r['f']:.5f}  T={r['T']:.6f}"
+              f"  θ={r['theta']:+.5f}  θ/T={r['theta_over_T']:+.4f}  f_d={r['f_d']:+.4f}"
+              f"  unstable={r['n_unstable']}  |μ|lead={r.get('mu_lead', float('nan')):.5f}"
+              f" {sps}", flush=True)
+
+    def close(self) -> None:
+        pass
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", choices=MODELS, required=True)
+    ap.add_argument("--budget", type=float, default=900.0, help="wall-clock seconds")
+    ap.add_argument("--out", type=Path, default=None, help="run store (default /tmp/...)")
+    args = ap.parse_args()
+    name = args.model
+    out = args.out or Path(f"/tmp/qp1_product/{name}")
+    spec_file = ROOT / "branches" / (f"{name}_qp1.toml" if (ROOT / "branches" /
+                                                             f"{name}_qp1.toml").exists()
+                                     else f"{name}.toml")
+    spec = load_spec(spec_file)
+    info = build_model(spec)
+    model = info.model
+    # Exact tangents are on by default on main; say so in the output.
+    exact = bool(getattr(model, "exact_tangents", False))
+    stored = BranchGraph.load_json(ROOT / "branches" / "data" / name / "graph.json",
+                                   symmetries=model.symmetries)
+    sid, bpc, bid, beating = stored_pitchfork(stored)
+    param = beating.param
+    print(f"{name}: spec {spec_file.name}, pitchfork {stored.label(sid)} on {bid} at "
+          f"{param} = {bpc.point.p:.6f}; exact tangents {exact}", flush=True)
+    problem = beating_problem(model, param, np.asarray(bpc.point.params, dtype=float))
+
+    t0, c0 = time.time(), time.process_time()
+    resume = out.exists() and any(out.iterdir())
+    if resume and run_state(out) == "finished":
+        print(f"{out}: finished run, reading it back", flush=True)
+    seeds = default_switchers().seeds(bpc, beating, problem)
+    t_switch = time.time() - t0
+    if not seeds:
+        raise SystemExit(f"no seed at the pitchfork: {bpc.data.get('switch_error')}")
+    seed = seeds[0]
+    ends = branch_end_specs(seed, end_fraction=float(spec.explorer["end_fraction"]))
+    seed.info["branch_ends"] = ends
+    print(f"switch: {len(seeds)} seed(s), first at {param} = {seed.p0:.6f} "
+          f"({seed.kind}), {t_switch:.0f} s; ends {[d['event'] for d in ends]}", flush=True)
+
+    lo, hi = spec.continuation["range"]
+    exp = ExplorerSettings(depth=0, both_directions=False, p_range=(lo, hi),
+                           max_points=int(spec.continuation["max_points"]),
+                           branch_ends=True,
+                           end_fraction=float(spec.explorer["end_fraction"]))
+    store = RunStore(out, spec={"qp1_product": name, "from": stored.label(sid)},
+                     resume=resume, fsync=False)
+    stop = StopRequest()
+    timer = threading.Timer(max(args.budget - t_switch, 1.0), stop.request, (signal.SIGALRM,))
+    timer.daemon = True
+    timer.start()
+    explorer = Explorer(root=seed, continuer=engine_continuer, settings=exp,
+                        continuation_settings=engine_settings(spec), store=store,
+                        observers=[PrintPoints(t0)], symmetries=model.symmetries,
+                        meta=dict(stored.meta), stop=stop)
+    interrupted = False
+    try:
+        graph = explorer.run()
+        store.save_graph(graph)
+        store.set_status("complete", n_branches=len(graph),
+                         n_special_points=len(graph.special_points))
+    except Interrupted:
+        interrupted = True
+        graph = explorer.graph
+    finally:
+        timer.cancel()
+        store.close()
+    wall, cpu = time.time() - t0, time.process_time() - c0
+    report(name, stored, sid, graph, wall, cpu, t_switch, interrupted, out, exact,
+           explorer.n_computed_points)
+
+
+def report(name: str, stored: BranchGraph, sid: str, graph: BranchGraph, wall: float,
+           cpu: float, t_switch: float, interrupted: bool, out: Path, exact: bool,
+           n_computed: int = 0) -> None:
+    """Add the QP1 branch to the stored graph, join its end, print the JSON line."""
+    res: dict[str, Any] = {"model": name, "out": str(out), "interrupted": interrupted,
+                           "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
+                           "switch_wall_s": round(t_switch, 1), "exact_tangents": exact,
+                           "pitchfork": {"label": stored.label(sid),
+                                         "p": float(stored.special_point(sid).point.p)}}
+    bids = graph.branch_ids()
+    if not bids:
+        res["points"] = 0
+        print(json.dumps(res))
+        return
+    qp1 = graph.branch(bids[0])
+    rows = [point_row(pt) for pt in qp1.points]
+    res["points"] = len(rows)
+    res["computed_points"] = int(n_computed)  # this invocation (not read back)
+    res["end_reason"] = str(qp1.meta.get("end_reason", ""))
+    qid, _ = stored.add_branch(qp1)
+    stored.link(sid, qid)
+    specials = []
+    for sp in qp1.special_points:
+        nid, _ = stored.add_special_point(qid, sp)
+        d = {"label": stored.label(nid), "kind": sp.kind, "p": float(sp.point.p),
+             "event": sp.data.get("event")}
+        if "p_end" in sp.data:
+            d["p_end"] = float(sp.data["p_end"])
+        mu = sp.data.get("multiplier")
+        if mu is not None:
+            d["multiplier"] = str(mu)
+        specials.append(d)
+    res["special_points"] = specials
+    joined = stored.join_ends()
+    res["ends"] = []
+    for end, target in joined:
+        e = stored.g.edges[end, target]
+        tsp = stored.special_point(target)
+        res["ends"].append({"end": stored.label(end), "kind": stored.special_point(end).kind,
+                            "p_end": e["p_end"], "joined": stored.label(target),
+                            "joined_kind": tsp.kind, "joined_p": float(tsp.point.p),
+                            "dp": e["dp"]})
+    # Frequencies at both ends of the computed branch, and a stability summary.
+    res["first"] = rows[0]
+    res["last"] = rows[-1]
+    nu = [r["n_unstable"] for r in rows]
+    runs: list[list[Any]] = []
+    for r in rows:
+        if runs and runs[-1][2] == r["n_unstable"]:
+            runs[-1][1] = r["p"]
+            runs[-1][3] += 1
+        else:
+            runs.append([r["p"], r["p"], r["n_unstable"], 1])
+    res["stability"] = {"n_stable": int(sum(1 for v in nu if v == 0)),
+                        "runs": [{"p_from": a, "p_to": b, "n_unstable": u, "points": n}
+                                 for a, b, u, n in runs]}
+    res["p_range"] = [float(min(r["p"] for r in rows)), float(max(r["p"] for r in rows))]
+    res["table"] = rows
+    print(json.dumps(res))
+
+
+if __name__ == "__main__":
+    main()
