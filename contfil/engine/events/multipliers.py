@@ -18,6 +18,11 @@ Array = NDArray[np.float64]
 #: ``v`` whose part off the trivial span is below this fraction of ``|v|`` is
 #: a trivial direction (round-off level of the projection of a unit vector).
 OFF_TRIVIAL_FLOOR = 1e-13
+#: A complex pair is resolved from +1 (may be a torus) when ``|arg μ|`` exceeds
+#: this many times ``√δ``, ``δ`` the trivial multipliers' distance from 1
+#: (:func:`resolved_angle`): "well above", since the coupling that splits a
+#: double multiplier into ``1 ± i√(cδ)`` has an unknown factor ``c``.
+RESOLVED_ANGLE_FACTOR = 3.0
 #: A mode whose eigenvector is this close to the trivial span cannot be
 #: placed in or out of an invariant subspace (see :func:`subspace_class`).
 UNCLASSIFIABLE = 1e-8
@@ -91,11 +96,14 @@ def resolved_angle(st: Stability) -> float:
     ``δ`` is measured by the trivial multipliers' distance from 1
     (:func:`trivial_accuracy`), so a pair whose angle is below ``√δ`` is
     not resolved from the 1:1 resonance: it is no torus (the fold or branch
-    point is its own event). Tip SF's QP1 had such pairs at ``1 ± 7e-4 i``
-    with trivial multipliers ~1e-5 from 1 (``√δ ≈ 3e-3``).
+    point is its own event). Returns ``RESOLVED_ANGLE_FACTOR · √δ``.
+
+    Tip SF's QP1 reported "tori" at pairs ``1 ± 7e-4 i`` next to its fold
+    of cycles; the trivial multipliers of the filament's relative periodic
+    orbits sit ~1e-5 from 1 (tip FF's QP1), so ``√δ ≈ 3e-3``.
     """
     d = trivial_accuracy(st)
-    return float(np.sqrt(d)) if d > 0.0 else 0.0
+    return RESOLVED_ANGLE_FACTOR * float(np.sqrt(d)) if d > 0.0 else 0.0
 
 
 def _trivial_basis(st: Stability) -> Array | None:
