@@ -49,15 +49,17 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from contfil.app.spec import load_spec
 from contfil.app.study import build_model, engine_settings
-from contfil.engine.branch import Branch, Point, SpecialPoint
-from contfil.engine.problems.shooting import PeriodicOrbitProblem
+from contfil.engine.branch import Branch, Point, SpecialPoint, decode
+from contfil.engine.problems.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
 from contfil.engine.switching.cycle_ends import branch_end_specs
 from contfil.explore.continuer import engine_continuer
 from contfil.explore.explorer import Explorer, ExplorerSettings
+from contfil.explore.seeds import Seed, seed_record
 from contfil.explore.stop import Interrupted, StopRequest
 from contfil.explore.switchers import PERIOD_MEANS, default_switchers
 from contfil.graph.branch_graph import BranchGraph
-from contfil.store.run_store import RunStore, run_state
+from contfil.store.atomic import RecordLog
+from contfil.store.run_store import RunStore, parse_task_records, run_state, task_name
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = ("tip_sf", "tip_ff", "dis_sf", "dis_ff")
@@ -131,6 +133,8 @@ def main() -> None:
     ap.add_argument("--model", choices=MODELS, required=True)
     ap.add_argument("--budget", type=float, default=900.0, help="wall-clock seconds")
     ap.add_argument("--out", type=Path, default=None, help="run store (default /tmp/...)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="compute nothing: report what the run store under --out holds")
     args = ap.parse_args()
     name = args.model
     out = args.out or Path(f"/tmp/qp1_product/{name}")
@@ -149,20 +153,45 @@ def main() -> None:
     print(f"{name}: spec {spec_file.name}, pitchfork {stored.label(sid)} on {bid} at "
           f"{param} = {bpc.point.p:.6f}; exact tangents {exact}", flush=True)
     problem = beating_problem(model, param, np.asarray(bpc.point.params, dtype=float))
+    if args.report_only:
+        report(name, stored, sid, stored_qp1(out, param), float("nan"), float("nan"),
+               float("nan"), run_state(out) != "finished", out, exact)
+        return
 
     t0, c0 = time.time(), time.process_time()
     resume = out.exists() and any(out.iterdir())
     if resume and run_state(out) == "finished":
         print(f"{out}: finished run, reading it back", flush=True)
-    seeds = default_switchers().seeds(bpc, beating, problem)
-    t_switch = time.time() - t0
-    if not seeds:
-        raise SystemExit(f"no seed at the pitchfork: {bpc.data.get('switch_error')}")
-    seed = seeds[0]
-    ends = branch_end_specs(seed, end_fraction=float(spec.explorer["end_fraction"]))
-    seed.info["branch_ends"] = ends
-    print(f"switch: {len(seeds)} seed(s), first at {param} = {seed.p0:.6f} "
-          f"({seed.kind}), {t_switch:.0f} s; ends {[d['event'] for d in ends]}", flush=True)
+    seed_file = out / "qp1_seed.json"
+    if resume and seed_file.exists():
+        # The switch (a Newton solve on the full model, minutes under load)
+        # is not redone: its stored seed is the one the run started from.
+        seed = rebuilt_seed(problem, json.loads(seed_file.read_text()))
+        t_switch = time.time() - t0
+        print(f"resume: seed read back from {seed_file}", flush=True)
+    elif resume and (first := first_record(out)) is not None:
+        # A run store without the seed file: its first stored point is the
+        # seed (stored as the switch returned it; the resume checks it).
+        x0, header = first
+        seed = rebuilt_seed(problem, {
+            "x0": x0.tolist(), "p0": header["p0"], "direction": header["direction"],
+            "tangent": None, "both_directions": False, "label": header["label"],
+            "info": {"left_subspace": problem.subspace.name}})
+        seed.info["branch_ends"] = branch_end_specs(
+            seed, end_fraction=float(spec.explorer["end_fraction"]))
+        t_switch = time.time() - t0
+        print("resume: seed rebuilt from the first stored point", flush=True)
+    else:
+        seeds = default_switchers().seeds(bpc, beating, problem)
+        t_switch = time.time() - t0
+        if not seeds:
+            raise SystemExit(f"no seed at the pitchfork: {bpc.data.get('switch_error')}")
+        seed = seeds[0]
+        ends = branch_end_specs(seed, end_fraction=float(spec.explorer["end_fraction"]))
+        seed.info["branch_ends"] = ends
+        print(f"switch: {len(seeds)} seed(s), first at {param} = {seed.p0:.6f} "
+              f"({seed.kind}), {t_switch:.0f} s; ends {[d['event'] for d in ends]}",
+              flush=True)
 
     lo, hi = spec.continuation["range"]
     exp = ExplorerSettings(depth=0, both_directions=False, p_range=(lo, hi),
@@ -171,6 +200,8 @@ def main() -> None:
                            end_fraction=float(spec.explorer["end_fraction"]))
     store = RunStore(out, spec={"qp1_product": name, "from": stored.label(sid)},
                      resume=resume, fsync=False)
+    if not seed_file.exists():
+        seed_file.write_text(json.dumps(seed_record(seed)))
     stop = StopRequest()
     timer = threading.Timer(max(args.budget - t_switch, 1.0), stop.request, (signal.SIGALRM,))
     timer.daemon = True
@@ -192,25 +223,73 @@ def main() -> None:
         timer.cancel()
         store.close()
     wall, cpu = time.time() - t0, time.process_time() - c0
-    report(name, stored, sid, graph, wall, cpu, t_switch, interrupted, out, exact,
+    # An interrupted branch is not in the graph yet: read it from the store.
+    bids = graph.branch_ids()
+    qp1 = graph.branch(bids[0]) if bids else stored_qp1(out, param)
+    report(name, stored, sid, qp1, wall, cpu, t_switch, interrupted, out, exact,
            explorer.n_computed_points)
 
 
-def report(name: str, stored: BranchGraph, sid: str, graph: BranchGraph, wall: float,
+def rebuilt_seed(beating: PeriodicOrbitProblem, d: dict[str, Any]) -> Seed:
+    """The QP1 seed from its stored record, with its problem built as
+    ``cycles_leaving_subspace`` builds it (the full model, drift unknown,
+    the beating problem's discretisation); the phase reference is restored
+    from the stored continuation state on resume."""
+    kw: dict[str, Any] = {"steps": beating.steps, "nev": beating.nev,
+                          "floquet_tol": beating.floquet_tol,
+                          "floquet_kmax": beating.floquet_kmax,
+                          "period_means": beating.period_means, **beating._flow_kw}
+    pb = RelativePeriodicOrbitProblem(beating.model, beating.param, beating.base_params,
+                                      symmetry_index=0, **kw)
+    x0 = np.asarray(d["x0"], dtype=float)
+    pb.set_reference(x0[: pb.dim], float(d["p0"]))
+    return Seed(problem=pb, x0=x0, p0=float(d["p0"]), direction=int(d["direction"]),
+                tangent=None if d["tangent"] is None else np.asarray(d["tangent"], dtype=float),
+                both_directions=d["both_directions"], label=str(d["label"]),
+                info=decode(d.get("info", {})))
+
+
+def first_record(out: Path) -> tuple[np.ndarray, dict[str, Any]] | None:
+    """``(x, header seed)`` of the first point of the stored QP1 task."""
+    log = out / "tasks" / f"{task_name(0, 1)}.jsonl"
+    if not log.exists():
+        return None
+    recs = parse_task_records(RecordLog(log).read()[0])
+    if not recs.xs or recs.header is None:
+        return None
+    return np.asarray(recs.xs[0], dtype=float), dict(recs.header["seed"])
+
+
+def _r(x: float) -> float | None:
+    return None if not np.isfinite(x) else round(float(x), 1)
+
+
+def stored_qp1(out: Path, param: str) -> Branch | None:
+    """The QP1 branch as the run store's task log holds it (also unfinished)."""
+    log = out / "tasks" / f"{task_name(0, 1)}.jsonl"
+    if not log.exists():
+        return None
+    recs = parse_task_records(RecordLog(log).read()[0])
+    if not recs.points:
+        return None
+    return Branch(kind=recs.points[0].kind, param=param, points=list(recs.points),
+                  special_points=list(recs.specials),
+                  meta={"end_reason": str(recs.end or "unfinished")})
+
+
+def report(name: str, stored: BranchGraph, sid: str, qp1: Branch | None, wall: float,
            cpu: float, t_switch: float, interrupted: bool, out: Path, exact: bool,
            n_computed: int = 0) -> None:
     """Add the QP1 branch to the stored graph, join its end, print the JSON line."""
     res: dict[str, Any] = {"model": name, "out": str(out), "interrupted": interrupted,
-                           "wall_s": round(wall, 1), "cpu_s": round(cpu, 1),
-                           "switch_wall_s": round(t_switch, 1), "exact_tangents": exact,
+                           "wall_s": _r(wall), "cpu_s": _r(cpu), "switch_wall_s": _r(t_switch),
+                           "exact_tangents": exact,
                            "pitchfork": {"label": stored.label(sid),
                                          "p": float(stored.special_point(sid).point.p)}}
-    bids = graph.branch_ids()
-    if not bids:
+    if qp1 is None or not qp1.points:
         res["points"] = 0
         print(json.dumps(res))
         return
-    qp1 = graph.branch(bids[0])
     rows = [point_row(pt) for pt in qp1.points]
     res["points"] = len(rows)
     res["computed_points"] = int(n_computed)  # this invocation (not read back)
