@@ -133,6 +133,8 @@ def main() -> None:
     ap.add_argument("--model", choices=MODELS, required=True)
     ap.add_argument("--budget", type=float, default=900.0, help="wall-clock seconds")
     ap.add_argument("--out", type=Path, default=None, help="run store (default /tmp/...)")
+    ap.add_argument("--ds-max", type=float, default=None,
+                    help="override the spec's continuation.ds_max (and ds, if larger)")
     ap.add_argument("--report-only", action="store_true",
                     help="compute nothing: report what the run store under --out holds")
     args = ap.parse_args()
@@ -206,8 +208,15 @@ def main() -> None:
     timer = threading.Timer(max(args.budget - t_switch, 1.0), stop.request, (signal.SIGALRM,))
     timer.daemon = True
     timer.start()
+    settings = engine_settings(spec)
+    if args.ds_max is not None:
+        # QP1 leaves the pitchfork steeply (θ ~ √(p - p_BPC)): with the spec's
+        # steps the corrector may land back on the beating branch (θ = 0).
+        settings.ds_max = float(args.ds_max)
+        settings.ds = min(settings.ds, settings.ds_max)
+        settings.ds_min = min(settings.ds_min, settings.ds / 64)
     explorer = Explorer(root=seed, continuer=engine_continuer, settings=exp,
-                        continuation_settings=engine_settings(spec), store=store,
+                        continuation_settings=settings, store=store,
                         observers=[PrintPoints(t0)], symmetries=model.symmetries,
                         meta=dict(stored.meta), stop=stop)
     interrupted = False
@@ -227,7 +236,8 @@ def main() -> None:
     bids = graph.branch_ids()
     qp1 = graph.branch(bids[0]) if bids else stored_qp1(out, param)
     report(name, stored, sid, qp1, wall, cpu, t_switch, interrupted, out, exact,
-           explorer.n_computed_points)
+           explorer.n_computed_points, {"spec": spec_file.name, "ds": settings.ds,
+                                        "ds_min": settings.ds_min, "ds_max": settings.ds_max})
 
 
 def rebuilt_seed(beating: PeriodicOrbitProblem, d: dict[str, Any]) -> Seed:
@@ -279,11 +289,11 @@ def stored_qp1(out: Path, param: str) -> Branch | None:
 
 def report(name: str, stored: BranchGraph, sid: str, qp1: Branch | None, wall: float,
            cpu: float, t_switch: float, interrupted: bool, out: Path, exact: bool,
-           n_computed: int = 0) -> None:
+           n_computed: int = 0, settings: dict[str, Any] | None = None) -> None:
     """Add the QP1 branch to the stored graph, join its end, print the JSON line."""
     res: dict[str, Any] = {"model": name, "out": str(out), "interrupted": interrupted,
                            "wall_s": _r(wall), "cpu_s": _r(cpu), "switch_wall_s": _r(t_switch),
-                           "exact_tangents": exact,
+                           "exact_tangents": exact, "settings": settings,
                            "pitchfork": {"label": stored.label(sid),
                                          "p": float(stored.special_point(sid).point.p)}}
     if qp1 is None or not qp1.points:
