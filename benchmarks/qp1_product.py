@@ -63,6 +63,8 @@ from contfil.store.run_store import RunStore, parse_task_records, run_state, tas
 
 ROOT = Path(__file__).resolve().parent.parent
 MODELS = ("tip_sf", "tip_ff", "dis_sf", "dis_ff")
+#: |θ| below this (rad per period) is no drift: a planar (beating) orbit.
+DRIFT_ZERO = 1e-6
 
 
 def stored_pitchfork(graph: BranchGraph) -> tuple[str, SpecialPoint, str, Branch]:
@@ -327,12 +329,20 @@ def report(name: str, stored: BranchGraph, sid: str, qp1: Branch | None, wall: f
                             "p_end": e["p_end"], "joined": stored.label(target),
                             "joined_kind": tsp.kind, "joined_p": float(tsp.point.p),
                             "dp": e["dp"]})
-    # Frequencies at both ends of the computed branch, and a stability summary.
-    res["first"] = rows[0]
-    res["last"] = rows[-1]
-    nu = [r["n_unstable"] for r in rows]
+    # A point with no drift after drifting ones: the corrector landed back on
+    # a θ = 0 orbit (beating, or a rotated copy), not on QP1. What follows
+    # is not QP1 and is left out of the summary (kept in the table).
+    jump = next((i for i in range(1, len(rows)) if abs(rows[i]["theta"]) < DRIFT_ZERO
+                 and abs(rows[i - 1]["theta"]) > 1e3 * DRIFT_ZERO), None)
+    res["landed_on_theta0_at"] = None if jump is None else rows[jump]["p"]
+    qrows = rows if jump is None else rows[:jump]
+    res["qp1_points"] = len(qrows)
+    # Frequencies at both ends of the computed QP1, and a stability summary.
+    res["first"] = qrows[0]
+    res["last"] = qrows[-1]
+    nu = [r["n_unstable"] for r in qrows]
     runs: list[list[Any]] = []
-    for r in rows:
+    for r in qrows:
         if runs and runs[-1][2] == r["n_unstable"]:
             runs[-1][1] = r["p"]
             runs[-1][3] += 1
@@ -341,7 +351,7 @@ def report(name: str, stored: BranchGraph, sid: str, qp1: Branch | None, wall: f
     res["stability"] = {"n_stable": int(sum(1 for v in nu if v == 0)),
                         "runs": [{"p_from": a, "p_to": b, "n_unstable": u, "points": n}
                                  for a, b, u, n in runs]}
-    res["p_range"] = [float(min(r["p"] for r in rows)), float(max(r["p"] for r in rows))]
+    res["p_range"] = [float(min(r["p"] for r in qrows)), float(max(r["p"] for r in qrows))]
     res["table"] = rows
     print(json.dumps(res))
 
