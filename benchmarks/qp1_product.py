@@ -329,6 +329,20 @@ def report(name: str, stored: BranchGraph, sid: str, qp1: Branch | None, wall: f
                             "p_end": e["p_end"], "joined": stored.label(target),
                             "joined_kind": tsp.kind, "joined_p": float(tsp.point.p),
                             "dp": e["dp"]})
+        ev = tsp.data.get("eigenvalue")
+        if tsp.kind == "torus" and ev is not None and "omega" in tsp.point.extra:
+            # Consistency at the torus: QP1's period is twice the period of
+            # the torus mode in the rotating frame (the half-period symmetry
+            # of beating), and its drift per period is whirling's rotation
+            # over that period, modulo 2π.
+            T_end = rows[-1]["T"]
+            rot = float(tsp.point.extra["omega"]) * T_end
+            res["ends"][-1]["torus_f_over_2"] = abs(complex(ev).imag) / (4 * np.pi)
+            res["ends"][-1]["whirling_omega"] = float(tsp.point.extra["omega"])
+            res["ends"][-1]["whirling_rotation_mod_2pi"] = float(
+                np.angle(np.exp(1j * rot)))
+            res["ends"][-1]["qp1_f_end"] = rows[-1]["f"]
+            res["ends"][-1]["qp1_theta_end"] = rows[-1]["theta"]
     # A point with no drift after drifting ones: the corrector landed back on
     # a θ = 0 orbit (beating, or a rotated copy), not on QP1. What follows
     # is not QP1 and is left out of the summary (kept in the table).
