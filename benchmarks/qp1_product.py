@@ -159,7 +159,7 @@ def main() -> None:
     problem = beating_problem(model, param, np.asarray(bpc.point.params, dtype=float))
     if args.report_only:
         report(name, stored, sid, stored_qp1(out, param), float("nan"), float("nan"),
-               float("nan"), run_state(out) != "finished", out, exact)
+               float("nan"), run_state(out) != "finished", out, exact, model=model)
         return
 
     t0, c0 = time.time(), time.process_time()
@@ -239,7 +239,8 @@ def main() -> None:
     qp1 = graph.branch(bids[0]) if bids else stored_qp1(out, param)
     report(name, stored, sid, qp1, wall, cpu, t_switch, interrupted, out, exact,
            explorer.n_computed_points, {"spec": spec_file.name, "ds": settings.ds,
-                                        "ds_min": settings.ds_min, "ds_max": settings.ds_max})
+                                        "ds_min": settings.ds_min, "ds_max": settings.ds_max},
+           model)
 
 
 def rebuilt_seed(beating: PeriodicOrbitProblem, d: dict[str, Any]) -> Seed:
@@ -272,6 +273,34 @@ def first_record(out: Path) -> tuple[np.ndarray, dict[str, Any]] | None:
     return np.asarray(recs.xs[0], dtype=float), dict(recs.header["seed"])
 
 
+def end_fit(model: Any, points: list[Point]) -> dict[str, Any]:
+    """The collapse end re-estimated from the accepted points only.
+
+    ``A = |f⊥(U)| / |L U|`` (the co-moving speed off the rotation, zero on a
+    rotating wave) at each point; ``A² ∝ p - p_end`` near the end, fitted
+    over the last 2, 3, 4 points: the spread is the error estimate. (The
+    collapse event extrapolates from the step that crossed its threshold,
+    whose far end may already sit on the rotating wave, ``A ≈ 0``: its
+    ``p_end`` is then that step's end.)
+    """
+    P, A = [], []
+    for pt in points:
+        U = np.asarray(pt.u, dtype=float)
+        f = np.asarray(model.rhs(U, pt.params), dtype=float)
+        Ls = [np.asarray(c.tangent(U), dtype=float) for c in model.symmetries.continuous]
+        Q, _ = np.linalg.qr(np.column_stack(Ls))
+        P.append(float(pt.p))
+        A.append(float(np.linalg.norm(f - Q @ (Q.T @ f)) / np.linalg.norm(Ls[0])))
+    Pa, A2 = np.array(P), np.array(A) ** 2
+    fits = {}
+    for k in (2, 3, 4):
+        if len(P) >= k:
+            c = np.polyfit(Pa[-k:], A2[-k:], 1)
+            fits[str(k)] = float(-c[1] / c[0]) if c[0] != 0 else float("nan")
+    return {"A_max": float(max(A)), "A_last": A[-1], "A_last_over_max": A[-1] / max(A),
+            "p_end_fit_last_k": fits}
+
+
 def _r(x: float) -> float | None:
     return None if not np.isfinite(x) else round(float(x), 1)
 
@@ -291,7 +320,8 @@ def stored_qp1(out: Path, param: str) -> Branch | None:
 
 def report(name: str, stored: BranchGraph, sid: str, qp1: Branch | None, wall: float,
            cpu: float, t_switch: float, interrupted: bool, out: Path, exact: bool,
-           n_computed: int = 0, settings: dict[str, Any] | None = None) -> None:
+           n_computed: int = 0, settings: dict[str, Any] | None = None,
+           model: Any = None) -> None:
     """Add the QP1 branch to the stored graph, join its end, print the JSON line."""
     res: dict[str, Any] = {"model": name, "out": str(out), "interrupted": interrupted,
                            "wall_s": _r(wall), "cpu_s": _r(cpu), "switch_wall_s": _r(t_switch),
@@ -366,6 +396,8 @@ def report(name: str, stored: BranchGraph, sid: str, qp1: Branch | None, wall: f
                         "runs": [{"p_from": a, "p_to": b, "n_unstable": u, "points": n}
                                  for a, b, u, n in runs]}
     res["p_range"] = [float(min(r["p"] for r in qrows)), float(max(r["p"] for r in qrows))]
+    if model is not None and len(qrows) >= 3:
+        res["end_fit"] = end_fit(model, qp1.points[:len(qrows)])
     res["table"] = rows
     print(json.dumps(res))
 
