@@ -48,6 +48,7 @@ from contfil.engine.events.multipliers import (
     _log_nearest_circle,
     _nontrivial,
     off_trivial,
+    resolved_angle,
     subspace_class,
     subspace_fraction,
 )
@@ -236,6 +237,10 @@ class TorusEvent(_MultiplierEvent):
 
     Data: the multiplier, its angle ``arg μ`` and rotation number
     ``arg μ / 2π``, and the complex eigenvector (``v_re``, ``v_im``).
+    Only pairs resolved from +1 count: ``|arg μ|`` above the square root of
+    the trivial multipliers' distance from 1
+    (:func:`~contfil.engine.events.multipliers.resolved_angle`); a closer
+    pair is a real multiplier near +1 split by the error, not a torus.
     """
 
     name = "torus"
@@ -243,7 +248,11 @@ class TorusEvent(_MultiplierEvent):
 
     def _candidates(self, st: Stability) -> NDArray[np.complex128]:
         vals, _ = _nontrivial(st)
-        return vals[~_is_real(vals, self.imag_tol)]
+        c = vals[~_is_real(vals, self.imag_tol)]
+        # A pair whose angle is within the multipliers' accuracy of 0 is a
+        # real multiplier near +1 split by the error (a 1:1 resonance: fold
+        # or branch point of cycles, caught by their own events), no torus.
+        return c[np.abs(np.angle(c)) > resolved_angle(st)]
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         st = ctx.stability_with_vectors()

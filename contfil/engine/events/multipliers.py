@@ -18,6 +18,11 @@ Array = NDArray[np.float64]
 #: ``v`` whose part off the trivial span is below this fraction of ``|v|`` is
 #: a trivial direction (round-off level of the projection of a unit vector).
 OFF_TRIVIAL_FLOOR = 1e-13
+#: A complex pair is resolved from +1 (may be a torus) when ``|arg μ|`` exceeds
+#: this many times ``√δ``, ``δ`` the trivial multipliers' distance from 1
+#: (:func:`resolved_angle`): "well above", since the coupling that splits a
+#: double multiplier into ``1 ± i√(cδ)`` has an unknown factor ``c``.
+RESOLVED_ANGLE_FACTOR = 3.0
 #: A mode whose eigenvector is this close to the trivial span cannot be
 #: placed in or out of an invariant subspace (see :func:`subspace_class`).
 UNCLASSIFIABLE = 1e-8
@@ -60,6 +65,45 @@ def _critical_vector(st: Stability, target: complex) -> dict[str, Any]:
         v = v * np.exp(-1j * np.angle(v[j]))
         out["v_re"], out["v_im"] = v.real.copy(), v.imag.copy()
     return out
+
+
+def trivial_accuracy(st: Stability) -> float:
+    """How far the trivial multipliers of ``st`` are from 1: the measured
+    accuracy of the multipliers near +1 (0 if not known).
+
+    Read from the Floquet solvers' record (``info["trivial_info"]
+    ["distance_from_one"]`` of shooting, ``info["trivial_distance"]`` of
+    collocation), else from the flagged values themselves.
+    """
+    info = st.info or {}
+    d = info.get("trivial_distance")
+    if d is None:
+        d = (info.get("trivial_info") or {}).get("distance_from_one")
+    if d is None and st.trivial is not None and np.any(st.trivial):
+        vals = np.asarray(st.values, dtype=complex)[np.asarray(st.trivial, dtype=bool)]
+        d = float(np.max(np.abs(vals - 1.0)))
+    d = float(d) if d is not None else 0.0
+    return d if np.isfinite(d) else 0.0
+
+
+def resolved_angle(st: Stability) -> float:
+    """Smallest ``|arg μ|`` at which a complex pair of ``st`` is resolved from +1.
+
+    A real multiplier near +1 next to the trivial ones (at a fold or branch
+    point of cycles: a double multiplier at 1 with a Jordan block) is split
+    by an error ``δ`` of the monodromy into ``1 ± √δ`` or ``1 ± i√δ``
+    (Puiseux: the eigenvalues of ``[[1, 1], [-δ, 1]]`` are ``1 ± i√δ``).
+    ``δ`` is measured by the trivial multipliers' distance from 1
+    (:func:`trivial_accuracy`), so a pair whose angle is below ``√δ`` is
+    not resolved from the 1:1 resonance: it is no torus (the fold or branch
+    point is its own event). Returns ``RESOLVED_ANGLE_FACTOR · √δ``.
+
+    Tip SF's QP1 reported "tori" at pairs ``1 ± 7e-4 i`` next to its fold
+    of cycles; the trivial multipliers of the filament's relative periodic
+    orbits sit ~1e-5 from 1 (tip FF's QP1), so ``√δ ≈ 3e-3``.
+    """
+    d = trivial_accuracy(st)
+    return RESOLVED_ANGLE_FACTOR * float(np.sqrt(d)) if d > 0.0 else 0.0
 
 
 def _trivial_basis(st: Stability) -> Array | None:
