@@ -492,3 +492,31 @@ def test_qp1_spec_follows_beating_to_qp1():
     lo, hi = s.p_range
     # the window holds the whirling torus (741.5) and beating's pitchfork (743.9)
     assert lo <= 237.0 and 743.9 < hi < 750.0
+
+
+def test_collapse_end_extrapolates_from_rpo_points_only(monkeypatch) -> None:
+    """``p_end`` from ``A² ∝ p_end - p``: from the step's two ends, or, when
+    the corrector pulled the far end onto the rotating wave (A ≈ 0 there),
+    from the step's start and the localised point, both on the RPO branch."""
+    from types import SimpleNamespace
+
+    import contfil.engine.events.cycle_ends as ce
+
+    p_end = 2.0  # A² = 3 (p_end - p)
+    speeds = {}
+
+    def ctx(p: float, a: float):
+        c = SimpleNamespace(p=p, x=None, problem=SimpleNamespace(extra=lambda x: {}))
+        speeds[id(c)] = (a, 1.0)
+        return c
+
+    monkeypatch.setattr(ce, "_comoving_speed", lambda c: speeds[id(c)])
+    ev = ce.RotatingWaveCollapseEvent()
+    on_branch = lambda p: float(np.sqrt(3 * (p_end - p)))  # noqa: E731
+    c0, cl = ctx(1.0, on_branch(1.0)), ctx(1.99, on_branch(1.99))
+    _, data = ev.special_point_data(cl, 0, c0, ctx(1.999, on_branch(1.999)))
+    assert data["p_end"] == pytest.approx(p_end, rel=1e-12)
+    # far end collapsed onto the wave at p = 2.3 (A = 0): the old two-end
+    # formula would put the end there
+    _, data = ev.special_point_data(cl, 0, c0, ctx(2.3, 1e-9))
+    assert data["p_end"] == pytest.approx(p_end, rel=1e-12)

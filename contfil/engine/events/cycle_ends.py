@@ -123,8 +123,9 @@ class RotatingWaveCollapseEvent(Event):
     phase conditions coincide), so the branch cannot be continued through:
     the event fires when ``A`` falls below ``end_fraction`` of its largest
     value on the branch (localised there) and reports the end
-    ``p_end`` by extrapolating ``A² `` linearly in ``p`` from the two
-    accepted points of the step (``A² ∝ p - p_end`` near a Hopf point;
+    ``p_end`` by extrapolating ``A² `` linearly in ``p`` from the step's two
+    ends (from its start and the localised point where the far end collapsed
+    onto the wave itself) (``A² ∝ p - p_end`` near a Hopf point;
     exact for a normal form), with ``omega`` (the wave's angular speed),
     ``amplitude`` (``A``), ``terminal``, ``joins = "hopf"``: the explorer's
     graph joins it to the rotating wave's Hopf point of the co-moving field,
@@ -188,8 +189,13 @@ class RotatingWaveCollapseEvent(Event):
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         a, om = _comoving_speed(ctx)
         a0, a1 = _comoving_speed(ctx0)[0], _comoving_speed(ctx1)[0]
-        d = a1**2 - a0**2
-        p_end = ctx1.p - a1**2 * (ctx1.p - ctx0.p) / d if d != 0.0 else float("nan")
+        # Extrapolate A² from the step's two ends, unless the corrector pulled
+        # the far end onto the rotating wave itself (A there far below the
+        # localised level: no RPO point, and a p_end biased by up to a
+        # step); then from the step's start and the localised point.
+        pe, ae = (ctx1.p, a1) if a1 >= 0.25 * a else (ctx.p, a)
+        d = ae**2 - a0**2
+        p_end = pe - ae**2 * (pe - ctx0.p) / d if d != 0.0 else float("nan")
         data: dict[str, Any] = {
             "terminal": self.terminal, "amplitude": a, "omega": om, "p_end": float(p_end),
             "joins": HOPF, "switchable": False, "test_value": a,
