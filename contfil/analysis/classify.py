@@ -250,72 +250,64 @@ def integer_combinations(
     """
     if peaks.size == 0:
         return np.empty(0), np.zeros(0, dtype=bool)
+    orders = {"max_order": max_order, "max_harmonic": max_harmonic, "max_order_3": max_order_3}
 
-    def fits(p: float, bases: list[float]) -> bool:
-        f1 = bases[0]
-        if len(bases) == 1:
-            m = int(np.rint(p / f1))
-            return 0 < m <= max_harmonic and abs(p - m * f1) <= df * (0.75 + 0.1 * m)
-        others = bases[1:]
-        span = max_order if len(bases) == 2 else max_order_3
-        ranges = [range(-span, span + 1)] * len(others)
-        for ns in np.array(np.meshgrid(*ranges, indexing="ij")).reshape(len(others), -1).T:
-            order_rest = int(np.abs(ns).sum())
-            if len(bases) == 3 and order_rest > max_order_3:
-                continue
-            rest = float(np.dot(ns, others))
-            for target in (p - rest, -p - rest):
-                m = int(np.rint(target / f1))
-                order = abs(m) + order_rest
-                if (abs(m) <= max_order if len(bases) == 2 else order <= max_order_3) \
-                        and abs(target - m * f1) <= df * (0.75 + 0.1 * order):
-                    return True
-        return False
+    def explained(bases: list[float]) -> NDArray[np.bool_]:
+        freq, tol = _combinations(np.asarray(bases), df, **orders)
+        return np.array([bool(np.any(np.abs(float(p) - freq) <= tol)) for p in peaks])
 
     bases = [float(peaks[0])]
-    expl = np.array([fits(float(p), bases) for p in peaks])
+    expl = explained(bases)
     fmax = float(np.max(peaks))
     while not expl.all() and len(bases) < max_bases:
         trial = bases + [float(peaks[np.flatnonzero(~expl)[0]])]
-        if len(trial) >= 3 and combination_coverage(
-                trial, df, fmax, max_order=max_order, max_order_3=max_order_3) > max_coverage:
+        if len(trial) >= 3 and combination_coverage(trial, df, fmax, **orders) > max_coverage:
             # So many combinations that a peak at a random frequency would
             # fit one: the third base would explain anything (too coarse a
             # spectrum for three frequencies). Keep the unexplained peaks.
             break
         bases = trial
-        expl = np.array([fits(float(p), bases) for p in peaks])
+        expl = explained(bases)
     return np.array(bases), expl
+
+
+def _combinations(
+    bases: Vec, df: float, max_order: int = 8, max_harmonic: int = 64, max_order_3: int = 6,
+) -> tuple[Vec, Vec]:
+    """The combination frequencies ``|m f1 + n f2 + k f3|`` that
+    :func:`integer_combinations` accepts for ``bases``, and the tolerance of
+    each, ``df (0.75 + 0.1 (|m| + |n| + |k|))``.
+
+    One base: harmonics ``1..max_harmonic``; two: ``|m|, |n| <= max_order``;
+    three: ``|m| + |n| + |k| <= max_order_3``.
+    """
+    if bases.size == 1:
+        ms = np.arange(1, max_harmonic + 1)[:, None]
+    else:
+        span = max_order if bases.size == 2 else max_order_3
+        grids = np.meshgrid(*[np.arange(-span, span + 1)] * bases.size, indexing="ij")
+        ms = np.stack([g.ravel() for g in grids], axis=1)
+        if bases.size >= 3:
+            ms = ms[np.abs(ms).sum(axis=1) <= span]
+    return np.abs(ms @ bases), df * (0.75 + 0.1 * np.abs(ms).sum(axis=1))
 
 
 def combination_coverage(
     bases: list[float] | Vec, df: float, fmax: float, max_order: int = 8,
-    max_order_3: int = 6,
+    max_harmonic: int = 64, max_order_3: int = 6,
 ) -> float:
     """Share of ``(0, fmax]`` within tolerance of some combination of ``bases``
-    that :func:`integer_combinations` accepts: the chance that a peak at a
-    random frequency is "explained" (its false-positive rate).
-
-    One base: its harmonics; two: ``|m|, |n| <= max_order``; three:
-    ``|m| + |n| + |k| <= max_order_3``; tolerance ``df (0.75 + 0.1 order)``.
+    that :func:`integer_combinations` accepts (:func:`_combinations`): the
+    chance that a peak at a random frequency is "explained" (its
+    false-positive rate).
     """
     b = np.asarray(bases, dtype=float)
     if b.size == 0 or fmax <= 0:
         return 0.0
-    span = max_order if b.size <= 2 else max_order_3
-    if b.size == 1:
-        ms = np.arange(1, int(fmax / b[0]) + 2)[:, None]
-    else:
-        grids = np.meshgrid(*[np.arange(-span, span + 1)] * b.size, indexing="ij")
-        ms = np.stack([g.ravel() for g in grids], axis=1)
-        if b.size >= 3:
-            ms = ms[np.abs(ms).sum(axis=1) <= span]
-    freq = np.abs(ms @ b)
-    order = np.abs(ms).sum(axis=1)
+    freq, tol = _combinations(b, df, max_order, max_harmonic, max_order_3)
     keep = (freq > 0) & (freq <= fmax * 1.01)
-    tol = df * (0.75 + 0.1 * order[keep])
-    lo = np.maximum(freq[keep] - tol, 0.0)
-    hi = np.minimum(freq[keep] + tol, fmax)
+    lo = np.maximum(freq[keep] - tol[keep], 0.0)
+    hi = np.minimum(freq[keep] + tol[keep], fmax)
     lo, hi = lo[lo < hi], hi[lo < hi]
     if lo.size == 0:
         return 0.0
