@@ -110,10 +110,9 @@ class DaskExecutor:
         task.key = task_key(key_task(task.key))
         task.future = self._submit_blob(task.blob, task.key)
 
-    def result(self, handle: Any, timeout: float | None) -> tuple[bool, Any]:
-        fut = handle.future if isinstance(handle, _DaskTask) else handle
+    def result(self, handle: _DaskTask, timeout: float | None) -> tuple[bool, Any]:
         try:
-            return True, fut.result(timeout=timeout)
+            return True, handle.future.result(timeout=timeout)
         except TimeoutError:
             return False, None
         except self._distributed.TimeoutError:  # older distributed: its own class
@@ -124,28 +123,26 @@ class DaskExecutor:
             # distributed's sync() ends in an UnboundLocalError instead (seen
             # with distributed 2026.8): the future may then still be pending
             # (the scheduler moves the task), so look again at the next poll.
-            if not isinstance(handle, _DaskTask):
-                raise
-            if fut.status == "cancelled":
+            if handle.future.status == "cancelled":
                 self._resubmit(handle)
             return False, None
 
-    def wait_any(self, handles: Sequence[Any], timeout: float) -> None:
+    def wait_any(self, handles: Sequence[_DaskTask], timeout: float) -> None:
         if not handles:
             return
-        futs = [h.future if isinstance(h, _DaskTask) else h for h in handles]
         try:
-            self._distributed.wait(futs, timeout=timeout, return_when="FIRST_COMPLETED")
+            self._distributed.wait([h.future for h in handles], timeout=timeout,
+                                   return_when="FIRST_COMPLETED")
         except (TimeoutError, self._distributed.TimeoutError):
             pass
         for h in handles:
-            if isinstance(h, _DaskTask) and h.future.status == "cancelled":
+            if h.future.status == "cancelled":
                 self._resubmit(h)
 
-    def cancel(self, handles: Iterable[Any]) -> None:
-        hs = [h.future if isinstance(h, _DaskTask) else h for h in handles]
-        if hs:
-            self.client.cancel(hs)
+    def cancel(self, handles: Iterable[_DaskTask]) -> None:
+        futs = [h.future for h in handles]
+        if futs:
+            self.client.cancel(futs)
 
     def busy(self) -> dict[str, list[str]]:
         try:
