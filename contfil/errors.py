@@ -51,5 +51,7 @@ class NonFiniteStepFailure(StepFailure, NonFiniteError):
 #: Values of :attr:`StepFailure.cause`: the corrector did not converge; a
 #: residual or Jacobian was NaN/inf; an unknown left its domain; a flow
 #: (time integration) failed; the tangent solve failed; the tangent turned
-#: by more than ``max_angle``.
-STEP_FAILURE_CAUSES = ("corrector", "non-finite", "domain", "flow", "tangent", "tangent_turn")
+#: by more than ``max_angle``; the secant to the corrected point turned by
+#: more than ``max_angle`` from the predictor (a jump to another branch).
+STEP_FAILURE_CAUSES = ("corrector", "non-finite", "domain", "flow", "tangent", "tangent_turn",
+                       "secant_turn")

@@ -7,6 +7,8 @@
 - A shooting problem's ``fast_iter`` lets its step grow after 4 corrector
   iterations; equilibria keep the run's ``fast_iter = 3``.
 - A step that cannot be reduced further raises a typed ``StepFailure``.
+- A corrector that lands sideways of the step (a jump onto another branch
+  whose tangent is parallel) is rejected and the step shrinks.
 """
 
 from __future__ import annotations
@@ -68,6 +70,43 @@ def test_flow_failing_at_every_step_size_raises_a_typed_step_failure() -> None:
         list(run)
     assert info.value.cause == "flow" and info.value.param == "a" and info.value.p == 0.0
     assert run.stop_reason == "error"
+
+
+def _parallel_branches_run(max_angle: float) -> Continuation:
+    """Two branches of ``[x - p, y (y - s(p))]`` with ``s = 0.4 + 8 p^2``:
+    the parent ``y = 0`` and the daughter ``y = s(p)``. At ``p = 0`` both
+    have the tangent ``(1, 0, 1)``, so the tangent test cannot tell them
+    apart; a long step's predictor lies below ``s/2``, inside Newton's basin
+    of the parent."""
+    def f(u: np.ndarray, p: np.ndarray) -> np.ndarray:
+        return np.array([u[0] - p[0], u[1] * (u[1] - 0.4 - 8.0 * p[0] ** 2)])
+
+    m = FunctionModel(f, dim=2, params={"p": 0.0})
+    s = ContinuationSettings(ds=0.3, ds_max=0.3, p_max=1.0, max_points=60,
+                             max_angle=max_angle, detect_events=False,
+                             compute_stability=False)
+    run = Continuation(EquilibriumProblem(m, "p"), np.array([0.0, 0.4]), 0.0, s)
+    list(run)
+    return run
+
+
+def test_a_jump_onto_a_parallel_branch_is_rejected_and_the_step_shrinks() -> None:
+    run = _parallel_branches_run(max_angle=0.5)
+    pts = run.branch.points
+    assert run.stop_reason == "p_max" and pts[-1].p == 1.0
+    # every point on the daughter, none on the parent
+    for pt in pts:
+        assert pt.u[1] == pytest.approx(0.4 + 8.0 * pt.p ** 2, abs=1e-9)
+    assert run.stats["steps_rejected"] >= 1
+
+
+def test_without_the_angle_tests_the_same_run_jumps() -> None:
+    # the control: with both angle tests off (tan(pi/2) is ~1e16 and the
+    # tangent test needs a negative inner product) the corrector lands on
+    # the parent y = 0, which is what the guard above prevents
+    run = _parallel_branches_run(max_angle=np.pi / 2)
+    assert run.stats["steps_rejected"] == 0
+    assert any(abs(pt.u[1]) < 1e-9 for pt in run.branch.points[1:])
 
 
 def test_non_finite_step_failure_is_both_typed_errors() -> None:

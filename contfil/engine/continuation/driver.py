@@ -5,7 +5,7 @@ The algebra (corrector, tangents) is in
 :mod:`contfil.engine.continuation.localise`, the settings in
 :mod:`contfil.engine.continuation.settings` and the resumable state in
 :mod:`contfil.engine.continuation.state`. Steps shrink on failure (and when
-the tangent turns by more than ``max_angle``) and grow on fast convergence.
+the tangent or the secant turns by more than ``max_angle``) and grow on fast convergence.
 
 Usage::
 
@@ -283,6 +283,17 @@ class Continuation:
         if (s.adapt and self.pa.ip(ctx.tangent, tau0) < np.cos(s.max_angle)
                 and ds > s.ds_min * DS_MIN_SLACK):
             return None, None, info, "tangent_turn", "tangent turned too far"
+        # The corrector moves in the hyperplane W-orthogonal to tau0, so the
+        # secant X - X0 is ds*tau0 plus a sideways part. On a smooth arc the
+        # secant turns by about half the tangent's turn; a secant turned by
+        # more than max_angle means the corrector left the arc, typically onto
+        # another branch through the same region (a switched branch falling
+        # back onto its parent near its end), even where the two branches'
+        # tangents are nearly parallel and the tangent test passes.
+        side = X - X0 - ds * tau0
+        if (s.adapt and np.sqrt(self.pa.ip(side, side)) > np.tan(s.max_angle) * ds
+                and ds > s.ds_min * DS_MIN_SLACK):
+            return None, None, info, "secant_turn", "corrector landed off the step's direction"
         return X, ctx, info, "", ""
 
     def _correct(self, X0: Array, tau0: Array) -> tuple[Array, EventContext, NewtonInfo]:

@@ -67,8 +67,10 @@ class ContinuationSettings:
         ``slow_shrink`` after a slow one (``slow_iter`` iterations or more:
         the point is accepted, so the cut is milder).
     max_angle:
-        Reject a step whose tangent turns by more than this (radians); keeps
-        the predictor from jumping between branches near branch points.
+        Reject a step whose tangent turns by more than this (radians), or
+        whose secant (previous point to corrected point) leaves the
+        predictor's direction by more than this; keeps the corrector from
+        jumping between branches near branch points and branch ends.
     detect_events, event_tol, event_max_iter:
         Event detection; localisation stops when the arclength update is
         below ``event_tol``.
