@@ -481,17 +481,20 @@ def test_spec_branch_end_keys():
         loads_spec(BASE + "branch_ends = 1\n")
 
 
-def test_qp1_spec_follows_beating_to_qp1():
+@pytest.mark.parametrize("model, pitchfork, torus", [
+    ("tip_sf", 743.9, 741.5), ("tip_ff", 152.5, 154.2),
+    ("dis_sf", 277.0, 312.3), ("dis_ff", 27.3, 34.2)])
+def test_paper_specs_follow_beating_to_qp1(model: str, pitchfork: float, torus: float) -> None:
     from contfil.app.spec import load_spec
     from contfil.app.study import explorer_settings
 
     root = Path(__file__).resolve().parents[1]
-    s = explorer_settings(load_spec(root / "branches" / "tip_sf_qp1.toml"))
+    s = explorer_settings(load_spec(root / "branches" / f"{model}.toml"))
     assert s.depth == 2 and "cycle_branch_point" in s.kinds and "double_hopf" in s.kinds
     assert s.branch_ends and s.branch_kinds is None
     lo, hi = s.p_range
-    # the window holds the whirling torus (741.5) and beating's pitchfork (743.9)
-    assert lo <= 237.0 and 743.9 < hi < 750.0
+    # the window holds the whirling torus and beating's pitchfork (QP1's ends)
+    assert lo == 0.0 and max(pitchfork, torus) < hi
 
 
 def test_collapse_end_extrapolates_from_rpo_points_only(monkeypatch) -> None:
