@@ -52,6 +52,7 @@ class NonFiniteStepFailure(StepFailure, NonFiniteError):
 #: residual or Jacobian was NaN/inf; an unknown left its domain; a flow
 #: (time integration) failed; the tangent solve failed; the tangent turned
 #: by more than ``max_angle``; the secant to the corrected point turned by
-#: more than ``max_angle`` from the predictor (a jump to another branch).
+#: more than ``max_angle`` from the predictor (a jump to another branch); an
+#: event rejected the corrected point (``Event.rejects_step``).
 STEP_FAILURE_CAUSES = ("corrector", "non-finite", "domain", "flow", "tangent", "tangent_turn",
-                       "secant_turn")
+                       "secant_turn", "event")

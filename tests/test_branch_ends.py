@@ -237,13 +237,13 @@ def test_join_survives_json_and_graphml(mw_graph, tmp_path: Path):
 # --------------------------------------------- (a) re-entry into the parent
 
 
-def _plane_explorer(depth: int) -> Explorer:
+def _plane_explorer(depth: int, ds: float = 0.05) -> Explorer:
     m = coupled_plane_model(k=0.0)
     # period means: the identity test tells the tilted cycles from the planar
     # ones (same parameter, same period 2π) by their period-mean norm
     pb = PeriodicOrbitProblem(m, "beta", steps=60, subspace="plane", nev=3, period_means=8)
     root = Seed(pb, np.array([np.sqrt(0.2), 0.0, 2 * np.pi]), 0.2, label="root")
-    s = ContinuationSettings(ds=0.05, ds_max=0.05, p_min=0.1, p_max=0.9, max_points=10**9,
+    s = ContinuationSettings(ds=ds, ds_max=ds, p_min=0.1, p_max=0.9, max_points=10**9,
                              event_tol=1e-10)
     return Explorer(root, engine_continuer,
                     ExplorerSettings(depth=depth, p_range=(0.1, 0.9), max_points=40),
@@ -275,6 +275,29 @@ def test_tilted_branch_merges_back_at_the_second_pitchfork_once():
         assert pt.u[2] ** 2 == pytest.approx(A0 - (pt.p - 0.5) ** 2, abs=1e-7)
     # 1 root + 1 switch at each pitchfork: 3 tasks, the last one cut short
     assert ex.n_tasks == 3
+
+
+@pytest.mark.parametrize("ds", [pytest.param(0.1, marks=pytest.mark.slow), 0.3])
+def test_long_steps_do_not_land_on_the_parent_near_the_merge(ds: float):
+    # The tilted cycles' out-of-plane part z shrinks to 0 at the second
+    # pitchfork (0.7); a long step's corrector there falls onto the planar
+    # cycles (z = 0) past it, which used to end the branch at a wrong place
+    # (0.76, 0.79, 0.85, or the range end, by step size). The re-entry event
+    # rejects a step that lands in the plane without crossing it, and the
+    # shortened step finds the merge exactly.
+    g = _plane_explorer(depth=2, ds=ds).run()
+    planar, tilted = g.branch_ids()
+    bps = g.special_points_on(planar)
+    br = g.branch(tilted)
+    assert br.meta["end_reason"] == "branch_end"
+    end = g.special_points_on(tilted)[-1]
+    sp = g.special_point(end)
+    assert sp.kind == "subspace_reentry"
+    assert sp.point.p == pytest.approx(CROSSINGS[1], abs=1e-7)
+    assert g.joined_to(end) == bps[1]
+    for pt in br.points[1:-1]:
+        assert abs(pt.u[2]) > 1e-3  # off the plane: none landed on the parent
+        assert pt.u[2] ** 2 == pytest.approx(A0 - (pt.p - 0.5) ** 2, abs=1e-7)
 
 
 # ------------------------------------------------ serial = Dask, and resume

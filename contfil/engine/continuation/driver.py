@@ -294,6 +294,14 @@ class Continuation:
         if (s.adapt and np.sqrt(self.pa.ip(side, side)) > np.tan(s.max_angle) * ds
                 and ds > s.ds_min * DS_MIN_SLACK):
             return None, None, info, "secant_turn", "corrector landed off the step's direction"
+        # An event may know that the corrected point is not on this branch
+        # (e.g. a symmetry-broken branch's point landed in the parent's
+        # subspace): a jump too small for the angle tests.
+        if s.adapt and ds > s.ds_min * DS_MIN_SLACK and self._prev is not None:
+            for ev in self.events:
+                why = ev.rejects_step(self._prev.ctx, ctx)
+                if why:
+                    return None, None, info, "event", f"{ev.name}: {why}"
         return X, ctx, info, "", ""
 
     def _correct(self, X0: Array, tau0: Array) -> tuple[Array, EventContext, NewtonInfo]:

@@ -198,3 +198,9 @@ class Event:
     def accepted(self, ctx: EventContext, values: Array) -> Array:
         """Called after a point is accepted; returns the values to compare next."""
         return values
+
+    def rejects_step(self, ctx0: EventContext, ctx1: EventContext) -> str | None:
+        """Why the step from the accepted point ``ctx0`` to the corrected
+        point ``ctx1`` cannot be a step along this branch (the driver then
+        shrinks the step), or ``None`` (default: any step is fine)."""
+        return None

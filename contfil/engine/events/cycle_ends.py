@@ -20,6 +20,11 @@ from contfil.errors import SpecError
 Array = NDArray[np.float64]
 
 
+#: A step counts as a jump onto the parent when it starts at least this many
+#: times ``accept_tol`` off the subspace and ends within ``accept_tol`` of it.
+JUMP_FACTOR = 1e3
+
+
 class SubspaceReentryEvent(Event):
     """End of a symmetry-broken branch: the orbit re-enters an invariant subspace.
 
@@ -81,6 +86,23 @@ class SubspaceReentryEvent(Event):
             self._ref = w / nw
             self._problem_id = id(ctx.problem)
         return np.array([nw])
+
+    def _deviation(self, ctx: EventContext) -> float:
+        w, U, _ = self._w(ctx)
+        return float(np.linalg.norm(w) / max(np.linalg.norm(U), 1e-300))
+
+    def rejects_step(self, ctx0: EventContext, ctx1: EventContext) -> str | None:
+        """A step from well off the subspace to a point *in* it is a jump
+        onto the parent (near the birth pitchfork the branch's
+        out-of-subspace part is small, so a long step's corrector may fall
+        into the parent's basin); a genuine re-entry crosses the subspace
+        (``w`` changes sign) and lands in it only by a coincidence of
+        measure zero."""
+        if self._deviation(ctx1) > self.accept_tol:
+            return None
+        if self._deviation(ctx0) <= JUMP_FACTOR * self.accept_tol:
+            return None
+        return f"the corrector landed in the subspace {self.subspace!r} (onto the parent)"
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         w, U, sub = self._w(ctx)
