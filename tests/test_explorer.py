@@ -155,9 +155,9 @@ def test_filament_upright_double_hopf_whirling(tmp_path) -> None:
     text = (text.replace("N = 20", "N = 8")
             .replace("ds_max = 2.0", "ds_max = 4.0"))
     # Beating (shooting) has its own, slower test.
-    text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
-                        'kinds = ["double_hopf", "hopf", "branch_point"]\n'
-                        'branches = ["equilibrium", "rotating_wave"]')
+    text = _set(_set(text, "depth", "1"), "kinds",
+                '["double_hopf", "hopf", "branch_point"]\n'
+                'branches = ["equilibrium", "rotating_wave"]')
     res = run_study(loads_spec(text), out=tmp_path / "run", plots=False)
     g = res.graph
     up = g.branch("B0")
@@ -367,8 +367,8 @@ def test_whirling_branch_agrees_with_time_integration(tmp_path) -> None:
     text = (Path(__file__).resolve().parents[1] / "branches" / "tip_ff.toml").read_text()
     text = _set(text, "range", f"[0.0, {f}]")
     text = text.replace("N = 20", "N = 8").replace("ds_max = 2.0", "ds_max = 4.0")
-    text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
-                        'kinds = ["double_hopf"]\nbranches = ["equilibrium", "rotating_wave"]')
+    text = _set(_set(text, "depth", "1"), "kinds",
+                '["double_hopf"]\nbranches = ["equilibrium", "rotating_wave"]')
     spec = loads_spec(text)
     res = run_study(spec, out=tmp_path / "run", plots=False)
     whirl = res.graph.branch("B1")
@@ -411,8 +411,8 @@ def test_filament_beating_born_unstable_at_double_hopf(tmp_path) -> None:
     text = (text.replace("N = 20", "N = 6")
             .replace("ds_max = 2.0", "ds_max = 4.0").replace("ds = 0.5", "ds = 2.0")
             .replace("[continuation]", "[continuation]\nstart = 30.0"))
-    text = text.replace('kinds = ["double_hopf", "hopf", "branch_point"]',
-                        'kinds = ["double_hopf"]\nbranches = ["equilibrium", "periodic_orbit"]')
+    text = _set(_set(text, "depth", "1"), "kinds",
+                '["double_hopf"]\nbranches = ["equilibrium", "periodic_orbit"]')
     res = run_study(loads_spec(text), out=tmp_path / "run", plots=False)
     g = res.graph
     (sid,) = g.special_points

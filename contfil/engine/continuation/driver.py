@@ -299,7 +299,9 @@ class Continuation:
         # subspace): a jump too small for the angle tests.
         if s.adapt and ds > s.ds_min * DS_MIN_SLACK and self._prev is not None:
             for ev in self.events:
-                why = ev.rejects_step(self._prev.ctx, ctx)
+                # duck-typed events (e.g. a collocation mesh tracker) may lack it
+                rejects = getattr(ev, "rejects_step", None)
+                why = rejects(self._prev.ctx, ctx) if rejects is not None else None
                 if why:
                     return None, None, info, "event", f"{ev.name}: {why}"
         return X, ctx, info, "", ""
