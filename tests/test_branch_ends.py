@@ -546,3 +546,29 @@ def test_collapse_end_extrapolates_from_rpo_points_only(monkeypatch) -> None:
     # formula would put the end there
     _, data = ev.special_point_data(cl, 0, c0, ctx(2.3, 1e-9))
     assert data["p_end"] == pytest.approx(p_end, rel=1e-12)
+
+
+def test_reentry_event_rejects_landing_on_the_parent_and_on_the_mirror():
+    """The rule of ``SubspaceReentryEvent.rejects_step`` on exact states of
+    the plane system (a): ``w`` is the ``z`` part of the state."""
+    from types import SimpleNamespace
+
+    # the tilted branch is solved in the full model (no subspace)
+    pb = PeriodicOrbitProblem(coupled_plane_model(k=0.0), "beta", steps=60)
+    ev = SubspaceReentryEvent("plane")
+
+    def ctx(z: float) -> SimpleNamespace:
+        return SimpleNamespace(problem=pb, x=np.array([0.5, 0.1, z, 2 * np.pi]))
+
+    def pred(z: float) -> np.ndarray:
+        return np.array([0.5, 0.1, z, 2 * np.pi, 0.6])
+
+    # along the branch, and a genuine crossing (the predictor crossed too)
+    assert ev.rejects_step(ctx(0.1), ctx(0.12), pred(0.13)) is None
+    assert ev.rejects_step(ctx(0.02), ctx(-0.01), pred(-0.015)) is None
+    # landed in the plane from well off it: onto the parent
+    assert "landed in the subspace" in ev.rejects_step(ctx(0.05), ctx(1e-9), pred(0.06))
+    # the corrector reversed the predicted z: onto the mirror branch
+    assert "reversed" in ev.rejects_step(ctx(0.05), ctx(-0.06), pred(0.07))
+    # a step that starts in the plane (the parent itself) is never rejected
+    assert ev.rejects_step(ctx(0.0), ctx(1e-12), pred(0.0)) is None

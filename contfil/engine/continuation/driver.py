@@ -301,7 +301,8 @@ class Continuation:
             for ev in self.events:
                 # duck-typed events (e.g. a collocation mesh tracker) may lack it
                 rejects = getattr(ev, "rejects_step", None)
-                why = rejects(self._prev.ctx, ctx) if rejects is not None else None
+                why = (rejects(self._prev.ctx, ctx, X0 + ds * tau0) if rejects is not None
+                       else None)
                 if why:
                     return None, None, info, "event", f"{ev.name}: {why}"
         return X, ctx, info, "", ""

@@ -199,8 +199,10 @@ class Event:
         """Called after a point is accepted; returns the values to compare next."""
         return values
 
-    def rejects_step(self, ctx0: EventContext, ctx1: EventContext) -> str | None:
+    def rejects_step(self, ctx0: EventContext, ctx1: EventContext,
+                     x_pred: Array) -> str | None:
         """Why the step from the accepted point ``ctx0`` to the corrected
-        point ``ctx1`` cannot be a step along this branch (the driver then
+        point ``ctx1`` (predicted at ``x_pred``: unknowns, then the
+        parameter) cannot be a step along this branch (the driver then
         shrinks the step), or ``None`` (default: any step is fine)."""
         return None

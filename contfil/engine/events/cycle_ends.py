@@ -20,9 +20,13 @@ from contfil.errors import SpecError
 Array = NDArray[np.float64]
 
 
-#: A step counts as a jump onto the parent when it starts at least this many
-#: times ``accept_tol`` off the subspace and ends within ``accept_tol`` of it.
-JUMP_FACTOR = 1e3
+#: A step counts as a jump onto the parent when it ends within ``accept_tol``
+#: of the subspace, from a point off it (beyond ``accept_tol``) by at least
+#: this factor more. Close to the birth pitchfork the branch's own
+#: off-subspace part may be only ~1e-4 (dis SF's QP1), so the factor is
+#: modest; a genuine re-entry lands this close only by coincidence, and then
+#: the halved step crosses it as usual.
+JUMP_FACTOR = 10.0
 
 
 class SubspaceReentryEvent(Event):
@@ -91,18 +95,40 @@ class SubspaceReentryEvent(Event):
         w, U, _ = self._w(ctx)
         return float(np.linalg.norm(w) / max(np.linalg.norm(U), 1e-300))
 
-    def rejects_step(self, ctx0: EventContext, ctx1: EventContext) -> str | None:
-        """A step from well off the subspace to a point *in* it is a jump
-        onto the parent (near the birth pitchfork the branch's
-        out-of-subspace part is small, so a long step's corrector may fall
-        into the parent's basin); a genuine re-entry crosses the subspace
-        (``w`` changes sign) and lands in it only by a coincidence of
-        measure zero."""
-        if self._deviation(ctx1) > self.accept_tol:
-            return None
-        if self._deviation(ctx0) <= JUMP_FACTOR * self.accept_tol:
-            return None
-        return f"the corrector landed in the subspace {self.subspace!r} (onto the parent)"
+    def rejects_step(self, ctx0: EventContext, ctx1: EventContext,
+                     x_pred: Array) -> str | None:
+        """Reject a jump onto the parent or onto the mirror branch.
+
+        Near the birth pitchfork the branch's out-of-subspace part ``w`` is
+        small, so a long step's corrector may fall onto the parent (``w``
+        removed) or onto the branch's mirror image (``w`` reversed), both a
+        small move against the step. Two signs of it:
+
+        - the corrected point lies in the subspace (``|w|/|U|`` within
+          ``accept_tol``) coming from a point clearly off it: a genuine
+          re-entry crosses the subspace and lands in it only by coincidence;
+        - the corrector reversed the ``w`` that the predictor carried
+          forward (``<w0, w_pred> > 0 > <w0, w1>``): across a genuine
+          re-entry the tangent carries the predictor across as well.
+
+        Either costs a genuine re-entry at most a halved step.
+        """
+        w0, U0, sub = self._w(ctx0)
+        n0 = float(np.linalg.norm(w0))
+        d0 = n0 / max(float(np.linalg.norm(U0)), 1e-300)
+        if d0 <= self.accept_tol:
+            return None  # the step starts in the subspace: nothing to leave
+        w1, U1, _ = self._w(ctx1)
+        d1 = float(np.linalg.norm(w1)) / max(float(np.linalg.norm(U1)), 1e-300)
+        if d1 <= self.accept_tol and d0 > JUMP_FACTOR * d1:
+            return (f"the corrector landed in the subspace {self.subspace!r} (onto the "
+                    f"parent): off-subspace part {d0:.2e} -> {d1:.2e}")
+        Up = np.asarray(ctx1.problem.state(np.asarray(x_pred[:-1], dtype=float)), dtype=float)
+        wp = Up - np.asarray(sub.embed(sub.project(Up)), dtype=float)
+        if float(w0 @ wp) > 0.0 > float(w0 @ w1):
+            return (f"the corrector reversed the off-subspace part the predictor carried "
+                    f"(onto the mirror branch or across {self.subspace!r})")
+        return None
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         w, U, sub = self._w(ctx)
