@@ -114,6 +114,24 @@ def test_whirling_is_classified_as_a_rotating_wave(tip_sf, whirling) -> None:
     np.testing.assert_allclose(inv, rotation_invariant(tip_sf, U), rtol=1e-3)
 
 
+def test_whirling_largest_lyapunov_exponent_is_zero(tip_sf, whirling) -> None:
+    # The Lyapunov path of classify_run on a known answer: a stable rotating
+    # wave's largest exponent is 0 (the neutral rotation; every other
+    # direction decays). The finite-time estimate from a random direction is
+    # biased low by the decay of its other components, ~ log|v0 . e|/t, so it
+    # must be within 2 standard errors of 0, and those small against the
+    # wave's own rate |omega| (111 here).
+    U, b1, omega = whirling
+    dt = 2 * np.pi / abs(omega) / 400
+    res, node = classify_run(tip_sf, U, np.array([b1]), dt, 64, sample_every=25,
+                             transient_steps=400, lyapunov_samples=100,
+                             lyapunov_map_steps=25)
+    ev = node["evidence"]
+    assert res.label == "rotating_wave"
+    assert abs(ev["lyapunov"]) <= 2 * ev["lyapunov_error"]
+    assert ev["lyapunov_error"] < 0.1 * abs(omega)
+
+
 def test_rotating_the_state_rotates_the_tip(tip_sf, whirling) -> None:
     U, _, _ = whirling
     th = 0.7
