@@ -84,7 +84,8 @@ def qp1_record(run: Path, name: str) -> dict[str, Any]:
         if not sp.data.get("terminal"):
             continue
         e: dict[str, Any] = {"label": g.label(sid), "kind": sp.kind, "p": float(sp.point.p),
-                             "p_end": float(sp.data.get("p_end", sp.point.p))}
+                             "p_end": float(sp.data.get("p_end", sp.point.p)),
+                             "p_end_error": float(sp.data.get("p_end_error", float("nan")))}
         target = g.joined_to(sid)
         if target is not None:
             tsp = g.special_point(target)
@@ -129,6 +130,7 @@ def main() -> None:
         for e in rec["ends"]:
             fit = rec.get("end_fit", {}).get("p_end_fit_last_k", {})
             print(f"    end {e['label']} ({e['kind']}) p={e['p']:.5f} p_end={e['p_end']:.5f}"
+                  f" ± {e['p_end_error']:.2g}"
                   + (f" -> {e['joined']} ({e['joined_kind']}) p={e['joined_p']:.5f} "
                      f"dp={e['dp']:.4f}" if "joined" in e else " (not joined)")
                   + (f"; fit of the last points {min(fit.values()):.4f}"

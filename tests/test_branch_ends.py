@@ -546,6 +546,16 @@ def test_collapse_end_extrapolates_from_rpo_points_only(monkeypatch) -> None:
     # formula would put the end there
     _, data = ev.special_point_data(cl, 0, c0, ctx(2.3, 1e-9))
     assert data["p_end"] == pytest.approx(p_end, rel=1e-12)
+    assert np.isnan(data["p_end_error"])  # one pair of RPO points only
+    # A² curved over the step, A² = 3 (p_end - p) + 5 (p_end - p)²: the pair
+    # nearest the end is closer to the truth, and the two pairs' difference
+    # bounds its error
+    curved = lambda p: float(np.sqrt(3 * (p_end - p) + 5 * (p_end - p) ** 2))  # noqa: E731
+    c0, cl, c1 = ctx(1.0, curved(1.0)), ctx(1.95, curved(1.95)), ctx(1.97, curved(1.97))
+    _, data = ev.special_point_data(cl, 0, c0, c1)
+    wide = 1.95 - curved(1.95) ** 2 * 0.95 / (curved(1.95) ** 2 - curved(1.0) ** 2)
+    assert abs(data["p_end"] - p_end) < 0.1 * abs(wide - p_end)
+    assert abs(data["p_end"] - p_end) <= data["p_end_error"]
 
 
 def test_reentry_event_rejects_landing_on_the_parent_and_on_the_mirror():

@@ -160,6 +160,13 @@ def _comoving_speed(ctx: EventContext) -> tuple[float, float]:
     return float(np.linalg.norm(fp)) / nl, float(lu @ f) / nl**2
 
 
+def _extrapolate_zero(pa: float, aa: float, pb: float, ab: float) -> float:
+    """Where ``A²``, linear in ``p`` through ``(pa, aa²)`` and ``(pb, ab²)``,
+    reaches 0 (NaN if the two are level)."""
+    d = ab**2 - aa**2
+    return float(pb - ab**2 * (pb - pa) / d) if d != 0.0 else float("nan")
+
+
 class RotatingWaveCollapseEvent(Event):
     """End of a relative periodic orbit collapsing onto a rotating wave.
 
@@ -171,10 +178,11 @@ class RotatingWaveCollapseEvent(Event):
     phase conditions coincide), so the branch cannot be continued through:
     the event fires when ``A`` falls below ``end_fraction`` of its largest
     value on the branch (localised there) and reports the end
-    ``p_end`` by extrapolating ``A² `` linearly in ``p`` from the step's two
-    ends (from its start and the localised point where the far end collapsed
-    onto the wave itself) (``A² ∝ p - p_end`` near a Hopf point;
-    exact for a normal form), with ``omega`` (the wave's angular speed),
+    ``p_end`` by extrapolating ``A²`` linearly in ``p`` from the two RPO
+    points nearest the end (the localised point and the step's far end, or
+    the step's start where the far end collapsed onto the wave itself;
+    ``A² ∝ p - p_end`` near a Hopf point, exact for a normal form) with
+    ``p_end_error`` (the other pair's answer minus it), with ``omega`` (the wave's angular speed),
     ``amplitude`` (``A``), ``terminal``, ``joins = "hopf"``: the explorer's
     graph joins it to the rotating wave's Hopf point of the co-moving field,
     which a rotating-wave branch reports as its ``torus`` point (lab frame).
@@ -237,15 +245,22 @@ class RotatingWaveCollapseEvent(Event):
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         a, om = _comoving_speed(ctx)
         a0, a1 = _comoving_speed(ctx0)[0], _comoving_speed(ctx1)[0]
-        # Extrapolate A² from the step's two ends, unless the corrector pulled
-        # the far end onto the rotating wave itself (A there far below the
-        # localised level: no RPO point, and a p_end biased by up to a
-        # step); then from the step's start and the localised point.
-        pe, ae = (ctx1.p, a1) if a1 >= 0.25 * a else (ctx.p, a)
-        d = ae**2 - a0**2
-        p_end = pe - ae**2 * (pe - ctx0.p) / d if d != 0.0 else float("nan")
+        # A² is linear in p near the end (exact for a normal form), curved
+        # further away: extrapolate from the two RPO points nearest the end.
+        # Those are the localised point and the step's far end, unless the
+        # corrector pulled the far end onto the rotating wave itself (A far
+        # below the localised level: no RPO point, a p_end biased by up to a
+        # step) or the two are too close to tell apart; then the step's start
+        # and the localised point. Where both pairs exist, their difference
+        # is the error estimate of p_end (the curvature of A² over the step).
+        wide = _extrapolate_zero(ctx0.p, a0, ctx.p, a)
+        near = (_extrapolate_zero(ctx.p, a, ctx1.p, a1)
+                if a1 >= 0.25 * a and abs(a**2 - a1**2) > 0.01 * a**2 else float("nan"))
+        p_end = near if np.isfinite(near) else wide
+        err = abs(near - wide) if np.isfinite(near) and np.isfinite(wide) else float("nan")
         data: dict[str, Any] = {
             "terminal": self.terminal, "amplitude": a, "omega": om, "p_end": float(p_end),
+            "p_end_error": float(err),
             "joins": HOPF, "switchable": False, "test_value": a,
         }
         data.update(ctx.problem.extra(ctx.x))
