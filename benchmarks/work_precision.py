@@ -34,9 +34,15 @@ Beating reference: Radau IIA (order 5) at 256 steps, its error estimated
 from 128/256 steps (``|T_256 - T_128|/31``); cross-checked against BDF2
 with Richardson at 3200/6400 steps. Whirling reference: the rotating wave.
 
-Run (~10-15 min CPU)::
+The pitchfork of the beating branch (the b1 where its leading
+out-of-plane multiplier crosses 1, by secant iteration on re-solved orbits)
+against resolution is a separate run (``--pitchfork``): BDF2 at
+``T/400 .. T/1600`` with Richardson, Radau IIA of order 5 and 3; reference
+Radau (order 5) at 128 steps, error from 64/128.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/work_precision.py [--quick]
+Run (~10-15 min CPU; ``--pitchfork`` ~5 min)::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/work_precision.py [--quick | --pitchfork]
 
 Ends with one JSON line (also written to /tmp/work_precision.json).
 """
@@ -241,6 +247,52 @@ def run_case(name: str, m: FilamentModel, x_ref0: np.ndarray, p: float, subspace
             "p": p, "bdf2_T400_flow_cpu": unit, "bdf2_T400_solve_cpu": unit_solve}
 
 
+def pitchfork(m: FilamentModel, x0: np.ndarray, method: str, n: int,
+              b_guess: tuple[float, float] = (742.5, 744.5)) -> tuple[float, float, int]:
+    """Beating pitchfork: the b1 where the leading out-of-plane multiplier
+    is 1, by the secant method on ``mu(b1) - 1`` (orbit re-solved at each
+    b1). Returns (b1, CPU, orbit solves)."""
+    t = time.process_time()
+    x = x0
+    pts: list[tuple[float, float]] = []
+    for b in b_guess:
+        x, mu, _ = solve_orbit(m, x, b, flow_obj(m, method, n), "planar_xz")
+        pts.append((b, mu.real - 1.0))
+    for _ in range(8):
+        (b0, g0), (b1, g1) = pts[-2], pts[-1]
+        b = b1 - g1 * (b1 - b0) / (g1 - g0)
+        x, mu, _ = solve_orbit(m, x, b, flow_obj(m, method, n), "planar_xz")
+        pts.append((b, mu.real - 1.0))
+        if abs(b - b1) < 1e-7:
+            break
+    return pts[-1][0], time.process_time() - t, len(pts)
+
+
+def pitchfork_table(m: FilamentModel, xb: np.ndarray) -> dict[str, Any]:
+    """Pitchfork location against resolution: BDF2 (and Richardson), Radau IIA."""
+    rows = []
+    for method, ns in (("bdf2", [400, 800, 1600]), ("radau5", [32, 64, 128]),
+                       ("radau3", [64, 128])):
+        for n in ns:
+            b, c, k = pitchfork(m, xb, method, n)
+            rows.append({"method": method, "steps": n, "b1": b, "cpu": c, "solves": k})
+            print(f"pitchfork {method:7s} n={n:5d} b1={b:.9f} cpu={c:.2f}s solves={k}",
+                  flush=True)
+    bd = {r["steps"]: r for r in rows if r["method"] == "bdf2"}
+    for n in (400, 800):
+        rows.append({"method": "bdf2_richardson", "steps": n,
+                     "b1": (4 * bd[2 * n]["b1"] - bd[n]["b1"]) / 3,
+                     "cpu": bd[n]["cpu"] + bd[2 * n]["cpu"], "solves": None})
+    r5 = {r["steps"]: r for r in rows if r["method"] == "radau5"}
+    ref, err = r5[128]["b1"], abs(r5[128]["b1"] - r5[64]["b1"]) / 31.0
+    unit = bd[400]["cpu"]
+    for r in rows:
+        r["b1_error"] = abs(r["b1"] - ref)
+        r["cpu_vs_bdf2_T400"] = r["cpu"] / unit
+    return {"rows": rows, "b1_ref": ref, "b1_ref_error": err,
+            "reference": "Radau IIA (order 5) at 128 steps, error from 64/128"}
+
+
 def table(case: dict[str, Any]) -> str:
     """A markdown table of one case."""
     out = ["| method | steps (scipy: rhs evals) | period error (rel.) | multiplier error | "
@@ -267,9 +319,22 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="beating only, fewer resolutions")
     ap.add_argument("--out", default="/tmp/work_precision.json")
+    ap.add_argument("--pitchfork", action="store_true",
+                    help="only the beating pitchfork location against resolution")
     a = ap.parse_args()
     m = FilamentModel(ROOT / "branches" / "tip_sf.toml")
     xb = beating_start(m)
+    if a.pitchfork:
+        pf = pitchfork_table(m, xb)
+        print(f"\n### beating pitchfork; reference {pf['reference']}: b1 = {pf['b1_ref']:.9f}"
+              f" (error {pf['b1_ref_error']:.1e})\n")
+        print("| method | steps | b1 | error | CPU / BDF2 T/400 |\n|---|---|---|---|---|")
+        for r in pf["rows"]:
+            print(f"| {r['method']} | {r['steps']} | {r['b1']:.7f} | {r['b1_error']:.1e} | "
+                  f"{r['cpu_vs_bdf2_T400']:.2f} |")
+        Path(a.out).write_text(json.dumps(pf))
+        print(json.dumps({"b1_ref": pf["b1_ref"], "b1_ref_error": pf["b1_ref_error"]}))
+        return
     if a.quick:
         grids = {"bdf2": [200, 400, 800], "radau5": [32, 64, 128], "radau3": [64, 128]}
     else:
