@@ -61,10 +61,10 @@ Array = NDArray[np.float64]
 __all__ = ["RADAU_STEPS_PER_PERIOD", "RadauStepper", "default_radau_steps", "flow",
            "flow_tangent"]
 
-#: Default steps per period of the Radau IIA flow (s = 3). At 64 steps the
-#: period of the tip SF beating orbit is within ~1e-9 (relative) of the
-#: reference (docs/accuracy.md, work-precision table).
-RADAU_STEPS_PER_PERIOD = 64
+#: Default steps per period of the Radau IIA flow (s = 3): the fewest with a
+#: period error <= 1e-8 on tip SF beating (9.3e-9; 2.9e-8 at 64 steps;
+#: docs/accuracy.md, work-precision table).
+RADAU_STEPS_PER_PERIOD = 80
 #: Halvings of a Newton step from a fresh Jacobian that multiplies the
 #: residual by more than ``GROWTH`` (milder growth is left to Newton: its
 #: first step often grows the residual and then converges quadratically).
