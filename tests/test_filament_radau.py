@@ -282,3 +282,17 @@ def test_whirling_monodromy_is_exp_of_comoving_jacobian() -> None:
     # has 2.2e-3 at 200 steps (test_filament_cycles)
     assert errs[1] < 2e-5
     assert errs[0] / errs[1] > 20.0
+
+
+def test_sweep_samples_are_the_flow_at_equal_times() -> None:
+    m = _model("planar", "squirmer", 100.0)
+    u, p = _bent(m), m.default_params()
+    ft = radau.flow_tangent(m, u, p, 0.02, steps=8, samples=4, tol=TOL)
+    assert ft.samples.shape == (4, m.dim)
+    assert np.abs(ft.samples[0] - u).max() < 1e-14  # frames round trip
+    for j in (1, 2, 3):
+        st = radau.RadauStepper(m, 0.02 / 8, p=p, tol=TOL)
+        st.reset(u)
+        assert np.array_equal(ft.samples[j], st.step(2 * j))
+    with pytest.raises(ValueError, match="multiple"):
+        radau.flow_tangent(m, u, p, 0.02, steps=8, samples=3)
