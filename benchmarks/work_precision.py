@@ -25,10 +25,13 @@ output; an adaptive method has no smooth discrete map to shoot on, so it
 has no multiplier here).
 
 For each fixed-step method and step count the discrete orbit is solved by
-shooting with exact tangents (Newton to 1e-11) from the reference orbit;
-``cpu`` is the least CPU of two single flows over one period (the unit of
-work of shooting), ``solve_cpu`` the CPU of that Newton solve (from the
-same start for every method). Ratios are to BDF2 at ``T/400``.
+shooting with exact tangents (Newton to 1e-11); ``cpu`` is the least CPU
+of two single flows over one period (the unit of work of shooting),
+``solve_cpu`` the CPU of that Newton solve, which starts for every method
+from the same point: the orbit at the neighbouring parameter (beating:
+b1 = 716.5, orbit_cost.py's continuation step; whirling: the previous
+stored point of the branch), as in a continuation step. Ratios are to
+BDF2 at ``T/400``.
 
 Beating reference: Radau IIA (order 5) at 256 steps, its error estimated
 from 128/256 steps (``|T_256 - T_128|/31``); cross-checked against BDF2
@@ -74,6 +77,8 @@ from contfil.models.filament.integrators import bdf2, radau  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 P_BEAT = 742.5
+#: the beating solves start from the orbit at this b1 (orbit_cost.py's step)
+P_START = 716.5
 
 
 class RadauFlow(FixedStepFlow):
@@ -109,32 +114,44 @@ def flow_obj(m: FilamentModel, method: str, n: int) -> FixedStepFlow:
 
 
 def solve_orbit(m: FilamentModel, x0: np.ndarray, p: float, fo: FixedStepFlow,
-                subspace: str | None) -> tuple[np.ndarray, complex, float]:
-    """The discrete orbit (u, T) of flow ``fo``, its leading non-trivial
-    multiplier and the CPU of the Newton solve."""
+                subspace: str | None, near: complex | None = None,
+                ) -> tuple[np.ndarray, complex, float]:
+    """The discrete orbit (u, T) of flow ``fo``, its leading multiplier and
+    the CPU of the Newton solve.
+
+    ``near=None``: the non-trivial multiplier of largest modulus (beating:
+    the out-of-plane one of the pitchfork). Otherwise the multiplier nearest
+    to ``near`` or its conjugate among all of them: for a rotating wave the
+    flow direction is also the symmetry direction, so the engine's second
+    "trivial" flag falls on a genuine multiplier near 1 (whirling's leading
+    one, |mu| = 1.03).
+    """
     pb = PeriodicOrbitProblem(fo, "b1", np.array([p]), subspace=subspace, nev=13,
                               floquet_tol=1e-8, jacobian_update="exact")
     pb.set_reference(x0[:-1], p)
     t = time.process_time()
     x, info = newton_dense(lambda z: pb.residual(z, p), lambda z: pb.jacobian(z, p), x0,
-                           tol=1e-11, max_iter=12)
+                           tol=1e-11, max_iter=15)
     c = time.process_time() - t
     if not info.converged:
         raise SystemExit(f"orbit did not converge ({fo.steps} steps): {info.history}")
     st = pb.stability(x, p)
-    vals = st.values[~st.trivial]
-    return x, complex(vals[np.argmax(np.abs(vals))]), c
+    if near is None:
+        vals = st.values[~st.trivial]
+        return x, complex(vals[np.argmax(np.abs(vals))]), c
+    d = np.minimum(np.abs(st.values - near), np.abs(st.values - np.conj(near)))
+    return x, complex(st.values[np.argmin(d)]), c
 
 
-def beating_start(m: FilamentModel) -> np.ndarray:
-    """Planar beating at b1 = 742.5 from the stored branch, solved with BDF2 T/400."""
+def beating_start(m: FilamentModel, p: float = P_BEAT) -> np.ndarray:
+    """Planar beating at ``p`` from the stored branch, solved with BDF2 T/400."""
     d = json.loads((ROOT / "docs/figures/filament_tip_sf_beating.json").read_text())
     pts = sorted(d["points"], key=lambda q: q["p"])
-    lo = max((q for q in pts if q["p"] <= P_BEAT), key=lambda q: q["p"])
-    hi = min((q for q in pts if q["p"] >= P_BEAT), key=lambda q: q["p"])
-    w = (P_BEAT - lo["p"]) / (hi["p"] - lo["p"])
+    lo = max((q for q in pts if q["p"] <= p), key=lambda q: q["p"])
+    hi = min((q for q in pts if q["p"] >= p), key=lambda q: q["p"])
+    w = (p - lo["p"]) / (hi["p"] - lo["p"])
     x0 = (1 - w) * np.array(lo["x"]) + w * np.array(hi["x"])
-    return solve_orbit(m, x0, P_BEAT, FixedStepFlow(m, 400), "planar_xz")[0]
+    return solve_orbit(m, x0, p, FixedStepFlow(m, 400), "planar_xz")[0]
 
 
 def whirling_reference(m: FilamentModel) -> dict[str, Any]:
@@ -153,8 +170,11 @@ def whirling_reference(m: FilamentModel) -> dict[str, Any]:
     T = 2 * np.pi / abs(float(x[-1]))
     lam = st.values[~st.trivial]
     mu = np.exp(lam * T)
+    prev = d["points"][k - 1]  # the neighbouring stored point: the solves' start
+    x_start = np.concatenate([d["x_points"][k - 1], [2 * np.pi / abs(prev["omega"])]])
     return {"p": p, "u": x[:-1], "omega": float(x[-1]), "T": T,
-            "mu_lead": complex(mu[np.argmax(np.abs(mu))]), "residual": float(info.history[-1])}
+            "mu_lead": complex(mu[np.argmax(np.abs(mu))]), "residual": float(info.history[-1]),
+            "x_start": x_start, "p_start": float(prev["p"])}
 
 
 def scipy_period(m: Any, u0: np.ndarray, p: float, T: float, method: str,
@@ -180,8 +200,13 @@ def scipy_period(m: Any, u0: np.ndarray, p: float, T: float, method: str,
 
 def run_case(name: str, m: FilamentModel, x_ref0: np.ndarray, p: float, subspace: str | None,
              grids: dict[str, list[int]], rtols: list[float], ref: dict[str, Any] | None,
-             ) -> dict[str, Any]:
-    """All methods on one orbit; rows of (method, steps, cpu, T, mu)."""
+             x_start: np.ndarray) -> dict[str, Any]:
+    """All methods on one orbit; rows of (method, steps, cpu, T, mu).
+
+    Every orbit solve starts from ``x_start``, the orbit at a neighbouring
+    parameter (a start no method has solved for); ``x_ref0`` is a nearby
+    solution used for the warm-up solves.
+    """
     fm = planar(m) if subspace else m
     pv = np.array([p])
     rows: list[dict[str, Any]] = []
@@ -191,10 +216,10 @@ def run_case(name: str, m: FilamentModel, x_ref0: np.ndarray, p: float, subspace
         solve_orbit(m, x_ref0, p, flow_obj(m, method, 64 if method != "bdf2" else 200),
                     subspace)
     for method, ns in grids.items():
-        x = x_ref0
         for n in ns:
             fo = flow_obj(m, method, n)
-            x, mu, sc = solve_orbit(m, x, p, fo, subspace)
+            x, mu, sc = solve_orbit(m, x_start, p, fo, subspace,
+                                    None if ref is None else ref["mu_lead"])
             orbits[(method, n)] = (x, mu)
             stepper = bdf2.flow if method == "bdf2" else radau.flow
             kw = {} if method == "bdf2" else {"stages": 3 if method == "radau5" else 2}
@@ -342,7 +367,8 @@ def main() -> None:
                  "radau5": [16, 24, 32, 48, 64, 80, 96, 128, 256],
                  "radau3": [32, 64, 128, 256]}
     rtols = [1e-3, 1e-4, 1e-5, 1e-6, 1e-7] if not a.quick else [1e-4, 1e-6]
-    cases = {"beating": run_case("beating", m, xb, P_BEAT, "planar_xz", grids, rtols, None)}
+    xs = beating_start(m, P_START)
+    cases = {"beating": run_case("beating", m, xb, P_BEAT, "planar_xz", grids, rtols, None, xs)}
     if not a.quick:
         w = whirling_reference(m)
         print(f"whirling: b1 = {w['p']:.4f}, omega = {w['omega']:.10f}, T = {w['T']:.14f}, "
@@ -350,10 +376,11 @@ def main() -> None:
         gw = {"bdf2": [100, 200, 400, 800, 1600, 3200], "radau5": [16, 32, 48, 64, 96, 128],
               "radau3": [32, 64, 128]}
         xw = np.concatenate([w["u"], [w["T"]]])
-        cases["whirling"] = run_case("whirling", m, xw, w["p"], None, gw, [1e-4, 1e-6], w)
+        cases["whirling"] = run_case("whirling", m, xw, w["p"], None, gw, [1e-4, 1e-6], w,
+                                     w["x_start"])
         cases["whirling"]["rotating_wave"] = {k: (v if not isinstance(v, complex)
                                                   else [v.real, v.imag])
-                                              for k, v in w.items() if k != "u"}
+                                              for k, v in w.items() if k not in ("u", "x_start")}
     for name, c in cases.items():
         print(f"\n### {name} (b1 = {c['p']:.4f}); reference: {c['reference']}, "
               f"T_ref = {c['T_ref']:.14f} (rel. error {c['T_ref_error']:.1e}), "
