@@ -26,10 +26,10 @@ in docs/accuracy.md ("Work-precision of the periodic-orbit integrators").
 - **Tangent.** :func:`flow_tangent` differentiates the converged stage
   equations (implicit function theorem): per step the exact stage Jacobian
   at the solution, one LU, all directions (monodromy columns, ``d/dT``,
-  ``d/ds``) solved together. That LU is then the next step's Newton matrix,
-  so a sweep costs about one Jacobian and one LU per step more than a
-  flow. The stepper's own Newton path is unchanged, so the sweep's end
-  point is the flow's bit for bit.
+  ``d/ds``) solved together, so a sweep costs about one Jacobian and one
+  LU per step more than a flow (measured ~2 flows, docs/performance.md).
+  The stepper's own Newton path is unchanged, so the sweep's end point is
+  the flow's bit for bit.
 
 The flow is a smooth function of ``(u, T, s)`` at fixed ``steps`` (up to the
 Newton tolerance), as shooting needs.
@@ -411,9 +411,9 @@ def flow_tangent(
     ``V`` (dim, k), ``None`` = the monodromy; a 3D model at a planar state
     with all directions normal to the plane propagates only that block along
     the planar flow, without ``dT``/``dp``; ``samples`` = states at ``j T/k``).
-    Per step: Newton from the previous step's factorisation, then the exact
-    stage Jacobian at the converged stages (implicit function theorem),
-    factored once for all directions.
+    Per step: the stepper's own Newton solve, then the exact stage Jacobian
+    at the converged stages (implicit function theorem), factored once for
+    all directions.
     """
     n = _n_steps(T, steps, None)
     if not (np.isfinite(T) and T > 0):
