@@ -26,7 +26,7 @@ has no multiplier here).
 
 For each fixed-step method and step count the discrete orbit is solved by
 shooting with exact tangents (Newton to 1e-11); ``cpu`` is the least CPU
-of two single flows over one period (the unit of work of shooting),
+of three single flows over one period (the unit of work of shooting),
 ``solve_cpu`` the CPU of that Newton solve, which starts for every method
 from the same point: the orbit at the neighbouring parameter (beating:
 b1 = 716.5, orbit_cost.py's continuation step; whirling: the previous
@@ -224,7 +224,7 @@ def run_case(name: str, m: FilamentModel, x_ref0: np.ndarray, p: float, subspace
             stepper = bdf2.flow if method == "bdf2" else radau.flow
             kw = {} if method == "bdf2" else {"stages": 3 if method == "radau5" else 2}
             c = cpu(lambda stepper=stepper, x=x, n=n, kw=kw: stepper(fm, x[:-1], pv, x[-1],
-                                                                      steps=n, **kw))
+                                                                      steps=n, **kw), 3)
             rows.append({"method": method, "steps": n, "cpu": c, "solve_cpu": sc,
                          "T": float(x[-1]), "mu": mu})
             print(f"{name} {method:7s} n={n:5d} T={x[-1]:.14f} mu={mu:.10f} flow cpu={c:.4f}s"
