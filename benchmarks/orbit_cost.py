@@ -32,7 +32,18 @@ columns, the rest of the step matrices, the solve for all directions with
 the propagation; the difference-columns step beside it), at a converged
 step of the orbit, for the planar block and the out-of-plane block.
 
-No higher-order integrator exists yet: ``cpu_vs_bdf2_T400`` is null.
+The geometric Radau IIA integrator (order 5,
+:mod:`contfil.models.filament.integrators.radau`) at ``RADAU_STEPS``
+steps per period, the fewest whose period error is <= 1e-8 in
+``benchmarks/work_precision.py``: its period error (against Radau at twice
+and four times the steps, order-5 extrapolation), ``cpu_vs_bdf2_T400`` =
+CPU of one Radau flow over the period / one BDF2 flow at ``T/400``
+(interleaved, least of 5), ``solve_cpu_vs_bdf2_T400`` = the same for
+solving the orbit at b1 = 742.5 by exact-tangent Newton from the orbit at
+716.5 (the same start for both, least of 2), the Radau
+step cost over the floor (``step_vs_floor_new_integrator``; per stage
+``stage_vs_floor_new_integrator``), and the continuation point itself with
+Radau flows and sweeps (``radau``: flows per point in the same BDF2 unit).
 
 Measured 2026-12-01 (shared 2-core machine, load ~4.5; docs/performance.md):
 11.5 flows per point against 128.1 before (23.4 with difference columns),
@@ -65,6 +76,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy.linalg as sla  # noqa: E402
+from work_precision import RadauFlow  # noqa: E402
 
 from contfil.engine.continuation.driver import Continuation, ContinuationSettings  # noqa: E402
 from contfil.engine.linalg.newton import newton_dense  # noqa: E402
@@ -83,6 +95,8 @@ from contfil.models.filament.kernels.geometry import configuration, positions, t
 ROOT = Path(__file__).resolve().parents[1]
 P0, P1 = 716.5, 742.5
 STEPS = 400
+#: Radau IIA steps per period with period error <= 1e-8 (work_precision.py)
+RADAU_STEPS = 80
 PERIOD_MEANS = 8
 
 
@@ -198,6 +212,26 @@ def unit_costs(m: FilamentModel, x: np.ndarray, p: float) -> dict[str, float]:
         "sweep_planar_fd": cpu(lambda: FDColumnsFlow(pl.base).flow_tangent(
             phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
         "sweep_3d_block_fd": cpu(lambda: FDColumnsFlow(m).flow_tangent(U, q, T, C), 2) / unit,
+    }
+
+
+def radau_units(m: FilamentModel, x: np.ndarray, p: float, unit_cpu: float) -> dict[str, float]:
+    """CPU of the Radau point's operations in the BDF2 unit (planar flow T/400)."""
+    fm = RadauPointFlow(m)
+    pl = fm.symmetries.invariant_subspaces["planar_xz"].reduced_model()
+    phi, T = x[:-1], x[-1]
+    q = np.array([p])
+    U = embed_planar(phi)
+    n1 = phi.size
+    C = np.zeros((U.size, 2 * n1))
+    C[0::3, :n1] = np.eye(n1)
+    C[2::3, n1:] = np.eye(n1)
+    return {
+        "flow": cpu(lambda: pl.flow(phi, q, T)) / unit_cpu,
+        "flow_3d": cpu(lambda: fm.flow(U, q, T)) / unit_cpu,
+        "sweep_planar": cpu(lambda: pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS), 2)
+        / unit_cpu,
+        "sweep_3d_block": cpu(lambda: fm.flow_tangent(U, q, T, C), 2) / unit_cpu,
     }
 
 
@@ -331,6 +365,64 @@ def period_error(m: FilamentModel, x: np.ndarray, p: float) -> dict[str, Any]:
             "mu_ref_error_estimate": abs(mref - (4 * mu[800] - mu[400]) / 3)}
 
 
+class RadauPointFlow(RadauFlow):
+    """The continuation point's flow with Radau IIA at ``RADAU_STEPS``."""
+
+    def __init__(self, model: FilamentModel, steps: int = RADAU_STEPS, *a: Any,
+                 **kw: Any) -> None:
+        super().__init__(model, steps, *a, **kw)
+
+
+def radau_costs(m: FilamentModel, x: np.ndarray, p: float, x_start: np.ndarray,
+                ) -> dict[str, Any]:
+    """Radau IIA against BDF2 T/400: period error, flow and solve CPU, step cost.
+
+    ``x`` is the BDF2 orbit at ``p``; both orbit solves start from
+    ``x_start`` (the orbit at the previous continuation point, b1 = 716.5:
+    a start neither method has solved for).
+    """
+    pl = FixedStepFlow(m, STEPS).symmetries.invariant_subspaces["planar_xz"].reduced_model()
+    q = np.array([p])
+    T = {}
+    xs = x
+    for n in (RADAU_STEPS, 2 * RADAU_STEPS, 4 * RADAU_STEPS):
+        pb = problem(m, p, cls=RadauFlow, steps=n, jacobian_update="exact")
+        pb.set_reference(x[:-1], p)
+        xs, info = newton_dense(lambda z, pb=pb: pb.residual(z, p),
+                                lambda z, pb=pb: pb.jacobian(z, p), xs, tol=1e-11, max_iter=12)
+        T[n] = float(xs[-1])
+        if n == RADAU_STEPS:
+            x_r = xs
+    n1, n2, n4 = RADAU_STEPS, 2 * RADAU_STEPS, 4 * RADAU_STEPS
+    ref = T[n4] + (T[n4] - T[n2]) / 31.0  # order 5
+    # the solve from the same start (BDF2 T/400 orbit) by both, interleaved
+    def solve(cls: type, n: int) -> None:
+        pb = problem(m, p, cls=cls, steps=n, jacobian_update="exact")
+        pb.set_reference(x_start[:-1], p)
+        _, info = newton_dense(lambda z: pb.residual(z, p), lambda z: pb.jacobian(z, p),
+                               x_start, tol=1e-11, max_iter=12)
+        if not info.converged:
+            raise SystemExit(f"solve from the start point failed ({cls.__name__})")
+
+    rf = RadauFlow(pl.base, n1)
+    phi, Tp = x_r[:-1], x_r[-1]
+    c_r, c_b, s_r, s_b = [], [], [], []
+    for _ in range(5):
+        c_r.append(cpu(lambda: rf.flow(phi, q, Tp), 1))
+        c_b.append(cpu(lambda: pl.flow(phi, q, Tp), 1))
+    for _ in range(2):
+        s_r.append(cpu(lambda: solve(RadauFlow, n1), 1))
+        s_b.append(cpu(lambda: solve(FixedStepFlow, STEPS), 1))
+    step_r = min(c_r) / n1
+    return {"T": T, "T_ref": ref, "period_error": abs(T[n1] - ref) / ref,
+            "ref_error_estimate": abs(T[n4] - T[n2]) / 31.0 / ref,
+            "observed_order": float(np.log2(abs(T[n1] - T[n2]) / abs(T[n2] - T[n4]))),
+            "flow_cpu": min(c_r), "bdf2_flow_cpu": min(c_b),
+            "cpu_vs_bdf2_T400": min(c_r) / min(c_b),
+            "solve_cpu": min(s_r), "bdf2_solve_cpu": min(s_b),
+            "solve_cpu_vs_bdf2_T400": min(s_r) / min(s_b), "step_cpu": step_r}
+
+
 def main() -> None:
     m = FilamentModel(ROOT / "branches" / "tip_sf.toml")
     x0 = start_orbit(m)
@@ -340,6 +432,8 @@ def main() -> None:
     before = one_point(m, x0, NoTangentFlow, fd_central=False)
     after = one_point(m, x0, FixedStepFlow)
     fdc = one_point(m, x0, FDColumnsFlow)
+    one_point(m, x0, RadauPointFlow, repeat=1, steps=RADAU_STEPS)  # warm-up, not measured
+    rad = one_point(m, x0, RadauPointFlow, steps=RADAU_STEPS)
     uc = unit_costs(m, after["x"], after["p"])
     flows_before = before["planar_flows"] + uc["flow_3d"] * before["flows_3d"]
 
@@ -349,7 +443,7 @@ def main() -> None:
                 + uc["sweep_3d_block" + suffix] * r["sweeps_3d"])
 
     flows_after, flows_fdc = flows(after), flows(fdc, "_fd")
-    for name, r in (("before", before), ("after", after), ("fdcols", fdc)):
+    for name, r in (("before", before), ("after", after), ("fdcols", fdc), ("radau", rad)):
         print(f"{name:6s}: b1 = {r['p']:.6f} T = {r['T']:.10f} Newton it = "
               f"{r['newton_iterations']} residual = {r['residual']:.1e} | planar flows "
               f"{r['planar_flows']}, 3D flows {r['flows_3d']}, planar sweeps "
@@ -378,6 +472,25 @@ def main() -> None:
           f"{pe['mu_ref'].real:.8f} (+- {pe['mu_ref_error_estimate']:.1e}); error of T/400 = "
           f"{pe['mu_error']:.2e}")
     fr = floor_ratio(m, after["x"], uc["unit_cpu"])
+    floor_s = (uc["unit_cpu"] / STEPS) / fr
+    rc = radau_costs(m, after["x"], after["p"], x0)
+    # the Radau point's flows and sweeps in the BDF2 unit (measured here)
+    ru = radau_units(m, rad["x"], rad["p"], uc["unit_cpu"])
+    flows_radau = (rad["planar_flows"] * ru["flow"] + rad["flows_3d"] * ru["flow_3d"]
+                   + rad["planar_sweeps"] * ru["sweep_planar"]
+                   + rad["sweeps_3d"] * ru["sweep_3d_block"])
+    print(f"Radau IIA at {RADAU_STEPS} steps: period {rc['T'][RADAU_STEPS]:.14f}, reference "
+          f"{rc['T_ref']:.14f}, relative error {rc['period_error']:.2e} (reference error "
+          f"{rc['ref_error_estimate']:.1e}, observed order {rc['observed_order']:.2f}); flow "
+          f"{rc['flow_cpu']:.4f} s vs BDF2 T/400 {rc['bdf2_flow_cpu']:.4f} s "
+          f"({rc['cpu_vs_bdf2_T400']:.2f}); orbit solve {rc['solve_cpu']:.2f} s vs "
+          f"{rc['bdf2_solve_cpu']:.2f} s ({rc['solve_cpu_vs_bdf2_T400']:.2f}); step "
+          f"{1e6 * rc['step_cpu']:.0f} us = {rc['step_cpu'] / floor_s:.1f} floors")
+    print(f"Radau point: units flow {ru['flow']:.2f}, 3D flow {ru['flow_3d']:.2f}, planar sweep "
+          f"{ru['sweep_planar']:.2f}, 3D block sweep {ru['sweep_3d_block']:.2f}; flows per "
+          f"point {flows_radau:.2f}; CPU {rad['cpu']:.3f} s ({rad['cpu'] / after['cpu']:.2f} of "
+          f"BDF2 T/400 exact tangents, {rad['cpu'] / before['cpu']:.4f} of before); "
+          f"|dT| vs BDF2 {abs(rad['T'] - after['T']):.1e}")
     out = {
         "flows_per_point": round(flows_after, 2),
         "flows_per_point_before": round(flows_before, 2),
@@ -386,11 +499,21 @@ def main() -> None:
         "cpu_per_point_before_s": round(before["cpu"], 3),
         "flows_per_point_fd_columns": round(flows_fdc, 2),
         "cpu_per_point_vs_before_fd_columns": round(fdc["cpu"] / before["cpu"], 4),
-        "period_error": float(f"{pe['period_error']:.3e}"),
-        "period_error_method": "relative, BDF2 T/400 vs Richardson(T/800, T/1600)",
-        "cpu_vs_bdf2_T400": None,  # no higher-order integrator yet
+        "period_error": float(f"{rc['period_error']:.3e}"),
+        "period_error_method": (f"relative, Radau IIA (order 5) at {RADAU_STEPS} steps vs "
+                                f"order-5 extrapolation of {2 * RADAU_STEPS}/{4 * RADAU_STEPS}"),
+        "period_error_bdf2_T400": float(f"{pe['period_error']:.3e}"),
+        "cpu_vs_bdf2_T400": round(rc["cpu_vs_bdf2_T400"], 3),
+        "solve_cpu_vs_bdf2_T400": round(rc["solve_cpu_vs_bdf2_T400"], 3),
+        "radau_steps": RADAU_STEPS,
         "step_vs_floor": round(fr, 2),
-        "step_vs_floor_new_integrator": None,
+        "step_vs_floor_new_integrator": round(rc["step_cpu"] / floor_s, 2),
+        "stage_vs_floor_new_integrator": round(rc["step_cpu"] / floor_s / 3, 2),
+        "flows_per_point_radau": round(flows_radau, 2),
+        "cpu_per_point_radau_s": round(rad["cpu"], 3),
+        "cpu_per_point_radau_vs_bdf2": round(rad["cpu"] / after["cpu"], 3),
+        "cpu_per_point_radau_vs_before": round(rad["cpu"] / before["cpu"], 4),
+        "dT_radau_bdf2": float(f"{abs(rad['T'] - after['T']):.2e}"),
         "sweep_planar_units": round(uc["sweep_planar"], 2),
         "sweep_3d_block_units": round(uc["sweep_3d_block"], 2),
         "flow_3d_units": round(uc["flow_3d"], 2),

@@ -31,6 +31,9 @@ from .scene import Scene, load_scene
 
 Array = np.ndarray
 
+#: Time steppers a model can use (``FilamentModel(..., integrator=...)``).
+INTEGRATORS = ("bdf2", "radau")
+
 
 def _rz_generator(nseg: int) -> Array:
     G = np.zeros((3 * nseg, 3 * nseg))
@@ -61,9 +64,17 @@ class FilamentModel:
     #: it False to make the engine use finite differences of the flow.
     exact_tangents: bool = True
 
-    def __init__(self, scene: Scene | Mapping[str, Any] | str | Path) -> None:
+    def __init__(self, scene: Scene | Mapping[str, Any] | str | Path,
+                 integrator: str = "bdf2") -> None:
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
+        if integrator not in INTEGRATORS:
+            raise ValueError(f"FilamentModel: integrator must be one of {INTEGRATORS}, "
+                             f"got {integrator!r}")
+        #: the time stepper of ``flow`` and ``flow_tangent``: ``"bdf2"`` (the
+        #: paper's, default) or ``"radau"`` (Radau IIA, order 5; see
+        #: :mod:`.integrators.radau`)
+        self.integrator = integrator
         self.scene = scene
         self.N = scene.N
         self.dL = scene.dL
@@ -136,12 +147,17 @@ class FilamentModel:
         self, u: Array, p: Array, T: float, steps: int | None = None, dt: float | None = None,
         **stepper_kw: Any,
     ) -> Array:
-        """Time-T map by BDF2 (:func:`contfil.models.filament.integrators.bdf2.flow`).
+        """Time-T map by BDF2 (:func:`contfil.models.filament.integrators.bdf2.flow`)
+        or, with ``integrator="radau"``, by :func:`.integrators.radau.flow`.
 
         ``steps`` or ``dt`` set the resolution; neither: ``default_steps(T)``.
         ``stepper_kw`` go to the stepper (``jacobian``, ``tol``, ...); an
         unknown keyword raises ``TypeError`` there, never silently ignored.
         """
+        if self.integrator == "radau":
+            from .integrators import radau
+
+            return radau.flow(self, u, p, T, steps=steps, dt=dt, **stepper_kw)
         from .integrators import bdf2 as stepper
 
         if steps is None and dt is None:
@@ -156,6 +172,13 @@ class FilamentModel:
         """Exact tangent of :meth:`flow` (the protocol's optional hook):
         :func:`contfil.models.filament.integrators.bdf2_tangent.flow_tangent`
         with ``dphi/dp`` when ``param_index`` is given."""
+        if self.integrator == "radau":
+            from .integrators import radau
+
+            n = radau.default_radau_steps(T) if steps is None else int(steps)
+            k = samples if samples and n % samples == 0 else 0
+            return radau.flow_tangent(self, u, p, T, V, steps=n,
+                                      want_p=param_index is not None, samples=k, **stepper_kw)
         from .integrators.bdf2_tangent import flow_tangent
 
         n = default_steps(T) if steps is None else int(steps)
@@ -268,7 +291,7 @@ class FilamentModel:
             return np.asarray(U)[1::3].copy()
 
         def reduced() -> FilamentModel:
-            return FilamentModel(scene.replace(dimension="planar"))
+            return FilamentModel(scene.replace(dimension="planar"), integrator=self.integrator)
 
         return Symmetries(
             continuous=[ContinuousSymmetry("rotation_e3", _rz_generator(n1), 2 * np.pi)],

@@ -34,6 +34,8 @@ step (residual, approximate Jacobian, Broyden loop and stepping).
 of ``rpy_derivative`` (``rpy_apply_jacobian(X, a, eta, F, T) -> (6N, 3N)``,
 ``d/dX (M [F; T])``) and ``frame_jacobian`` (velocities in the frames:
 elastic moments, squirming, follower and constraint loads).
+``radau_step``: the stage equations of the geometric Radau IIA step (each
+stage is the BDF2 residual at other coefficients) and their exact Jacobian.
 Units: L = 1, K_B = 1, eta = 1.
 """
 

@@ -1,0 +1,491 @@
+"""Geometric Radau IIA integrator of the filament, with its exact tangent-linear.
+
+A fixed-step collocation method on the frames, the higher-order companion of
+the paper's BDF2 (:mod:`.bdf2`); the method and the choice are in
+docs/decisions.md ("Radau IIA on local charts") and the measured accuracy
+in docs/accuracy.md ("Work-precision of the periodic-orbit integrators").
+
+- **Method.** ``s``-stage Radau IIA (default ``s = 3``: order 5, L-stable,
+  stiffly accurate; ``s = 2``: order 3) applied to the index-2 form of the
+  filament (positions by the robot arm, loads as algebraic unknowns), stage
+  equations in :mod:`contfil.models.filament.kernels.radau_step`. Each stage
+  solves exactly the BDF2 step residual with other coefficients, so the
+  physics (mobility, elastic, constraint and active loads, squirming) is the
+  one path the model's ``rhs`` and BDF2 use.
+- **Frames, no chart singularity.** The stage increments live in the local
+  chart of the step (``q_i = exp(u_i) q^k``), recentred every step, so the
+  rotations may grow without bound (RKMK-style local charts). Quaternions
+  are renormalised after each step (round-off only).
+- **Solver.** Newton on all stages together with the exact stage Jacobian
+  (the BDF2 step Jacobians on the diagonal, kinematic off-diagonal blocks),
+  LU-factored once per step at the predictor, which extrapolates the
+  previous step's collocation polynomial: on the beating orbit at ``T/80``
+  the residual goes 7e-4 -> 4e-9 -> 1e-13, so a step costs one Jacobian,
+  one LU and three residuals (rebuilt within the step only when the
+  iteration contracts slowly, ``rate``).
+- **Tangent.** :func:`flow_tangent` differentiates the converged stage
+  equations (implicit function theorem): per step the exact stage Jacobian
+  at the solution, one LU, all directions (monodromy columns, ``d/dT``,
+  ``d/ds``) solved together, so a sweep costs about one Jacobian and one
+  LU per step more than a flow (measured ~2 flows, docs/performance.md).
+  The stepper's own Newton path is unchanged, so the sweep's end point is
+  the flow's bit for bit.
+
+The flow is a smooth function of ``(u, T, s)`` at fixed ``steps`` (up to the
+Newton tolerance), as shooting needs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+import scipy.linalg as sla
+from numpy.typing import NDArray
+
+from contfil.errors import ConvergenceError, DomainError, NonFiniteError
+from contfil.protocol import FlowTangent
+
+from ..kernels import bdf2_tangent as _kt
+from ..kernels import radau_step as _kr
+from ..kernels.geometry import frames_from_state, positions, state_from_frames, tangents
+from ..physics import FilamentPhysics, embed_planar, project_planar
+from . import STEPS_PER_PERIOD, default_steps
+from .bdf2_stepper import _maps, _scene_of, _strength_from_params
+from .bdf2_tangent import _rotations_from_state, _state_from_rotations, _strength, normal_maps
+
+Array = NDArray[np.float64]
+
+__all__ = ["RADAU_STEPS_PER_PERIOD", "RadauStepper", "default_radau_steps", "flow",
+           "flow_tangent"]
+
+#: Default steps per period of the Radau IIA flow (s = 3): the fewest with a
+#: period error <= 1e-8 on tip SF beating (9.3e-9; 2.9e-8 at 64 steps;
+#: docs/accuracy.md, work-precision table).
+RADAU_STEPS_PER_PERIOD = 80
+#: Halvings of a Newton step from a fresh Jacobian that multiplies the
+#: residual by more than ``GROWTH`` (milder growth is left to Newton: its
+#: first step often grows the residual and then converges quadratically).
+MAX_BACKTRACK = 8
+GROWTH = 4.0
+#: Iterations with one Newton matrix before it is rebuilt, however it contracts.
+CHORD_MAX = 4
+#: Residuals below ``FLOOR * tol`` that a fresh exact Newton step cannot
+#: halve are accepted as the round-off floor.
+FLOOR = 100.0
+#: A predictor with a smaller scaled residual is taken without trying the next.
+PREDICTOR_OK = 0.05
+
+
+def _extrapolation(c: Array) -> tuple[Array, Array]:
+    """Predictor matrices: the previous step's collocation polynomials
+    extrapolated to the new stages. ``Eu`` (increments, through ``(0, 0)``
+    and the stages, re-based at the step's end) and ``El`` (loads, through
+    the stages)."""
+    s = c.size
+    nodes = np.concatenate([[0.0], c])
+
+    def lag(nd: Array, j: int, x: float) -> float:
+        return float(np.prod([(x - nd[m]) / (nd[j] - nd[m]) for m in range(nd.size) if m != j]))
+
+    Eu = np.array([[lag(nodes, j + 1, 1.0 + ci) - (1.0 if j == s - 1 else 0.0)
+                    for j in range(s)] for ci in c])
+    El = np.array([[lag(c, j, 1.0 + ci) for j in range(s)] for ci in c])
+    return Eu, El
+
+
+class RadauStepper:
+    """Fixed-step geometric Radau IIA integrator of one filament scene.
+
+    Parameters
+    ----------
+    model_or_scene:
+        A :class:`~contfil.models.filament.scene.Scene` or a model with ``.scene``.
+    dt:
+        Time step.
+    stages:
+        2 (order 3) or 3 (order 5, default).
+    tol:
+        Newton tolerance on the infinity norm of the scaled stage residuals.
+    max_iter:
+        Newton iterations per step (over all Jacobian rebuilds).
+    rate:
+        A Newton matrix is rebuilt at the current iterate when an iteration
+        with it reduces the residual by less than this factor (or after
+        ``CHORD_MAX`` iterations).
+    newton:
+        ``"full"`` (default): the exact stage Jacobian; ``"simplified"``:
+        all stages frozen at the middle one, ``s`` LUs of one stage's size
+        (Hairer & Wanner IV.8; more iterations, slower here).
+    reuse:
+        Carry the Newton matrix over to the next step (default False: a
+        fresh exact matrix at each step's predictor, measured cheaper on
+        the beating orbit: 2 iterations against 4-7 with the old matrix).
+    p, strength:
+        The actuation strength, from the model's parameter vector or given.
+    """
+
+    def __init__(self, model_or_scene: Any, dt: float, stages: int = 3, tol: float = 1e-10,
+                 max_iter: int = 25, rate: float = 0.5, newton: str = "full",
+                 reuse: bool = False,
+                 p: Array | None = None, strength: float | None = None) -> None:
+        self.scene = _scene_of(model_or_scene)
+        if strength is None:
+            strength = _strength_from_params(model_or_scene, self.scene, p)
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"RadauStepper: dt must be a positive finite number, got {dt!r}")
+        if not np.isfinite(strength):
+            raise NonFiniteError(f"RadauStepper: actuation strength is {strength!r}")
+        phys = getattr(model_or_scene, "physics", None)
+        if not isinstance(phys, FilamentPhysics) or phys.scene is not self.scene:
+            phys = FilamentPhysics(self.scene)
+        self.phys = phys
+        self.par = phys.params(float(strength))
+        self.dpar = phys.params(float(strength) + 1.0) - self.par
+        self.dt = float(dt)
+        self.tol = float(tol)
+        self.max_iter = int(max_iter)
+        self.rate = float(rate)
+        self.reuse = bool(reuse)
+        c, A = _kr.radau_tableau(int(stages))
+        self.s = c.size
+        self.c = c
+        self.W = np.linalg.inv(A)
+        self._Eu, self._El = _extrapolation(c)
+        if newton not in ("simplified", "full"):
+            raise ValueError(f"RadauStepper: newton must be 'simplified' or 'full', got {newton!r}")
+        self.newton = newton
+        lam, T = np.linalg.eig(self.W)
+        self._lam, self._T, self._Ti = lam, T, np.linalg.inv(T)
+        N = phys.N
+        self._zmap, self._rmap = _maps(N, phys.planar)
+        self._scales = _kr.stage_scales(self.dt, self.W, self.par, N)
+        self._q = np.empty((N, 4))
+        self._Zf: Array | None = None  # physical stage unknowns of the last step
+        self._lu: Callable[[Array], Array] | None = None
+        self.k = 0
+        #: per-step Newton iterations and Jacobian builds of the last run
+        self.iterations: list[int] = []
+        self.builds: list[int] = []
+        self._ready = False
+
+    @property
+    def dim(self) -> int:
+        return self.phys.dim
+
+    def reset(self, u: Array) -> None:
+        """Start from the model state ``u`` (planar ``phi`` or 3D ``U``)."""
+        u = np.asarray(u, dtype=float)
+        if u.shape != (self.dim,):
+            raise ValueError(f"RadauStepper.reset: state has shape {u.shape}, "
+                             f"expected ({self.dim},) for this scene")
+        if not np.all(np.isfinite(u)):
+            raise NonFiniteError("RadauStepper.reset: initial state has non-finite entries")
+        U = embed_planar(u) if self.phys.planar else u
+        self._q[:] = frames_from_state(U)
+        self._Zf = None
+        self._lu = None
+        self.k = 0
+        self.iterations, self.builds = [], []
+        self._ready = True
+
+    @property
+    def state(self) -> Array:
+        """Current model state (planar ``phi`` or 3D ``U``)."""
+        U = state_from_frames(self._q)
+        return project_planar(U) if self.phys.planar else U
+
+    @property
+    def frames(self) -> Array:
+        """Current quaternions (N, 4)."""
+        return self._q.copy()
+
+    def _predict(self) -> list[Array]:
+        """Candidate scaled reduced stage unknowns (s, nz) to start Newton from.
+
+        First step: no motion, the loads of the continuous constraint
+        problem. Later: the previous step's collocation polynomials
+        extrapolated (accurate on smooth orbits), and the constant-velocity
+        guess ``u_i = c_i u_s``, loads of the last stage (robust in stiff
+        transients, where the extrapolation overshoots); Newton starts from
+        the one with the smaller residual.
+        """
+        N = self.phys.N
+        s = self.s
+        nu = 3 * (N - 1)
+        if self._Zf is None:
+            lam = self.phys.constraint_loads(self._q, self.par)
+            Zf = np.zeros((s, 6 * N))
+            Zf[:, nu:] = lam
+            return [np.ascontiguousarray((Zf / self._scales)[:, self._zmap])]
+        Zx = np.empty_like(self._Zf)
+        Zx[:, :nu] = self._Eu @ self._Zf[:, :nu]
+        Zx[:, nu:] = self._El @ self._Zf[:, nu:]
+        Zc = np.empty_like(self._Zf)
+        Zc[:, :nu] = np.outer(self.c, self._Zf[-1, :nu])
+        Zc[:, nu:] = self._Zf[-1, nu:]
+        return [np.ascontiguousarray((Zx / self._scales)[:, self._zmap]),
+                np.ascontiguousarray((Zc / self._scales)[:, self._zmap])]
+
+    def _physical(self, Z: Array) -> Array:
+        N = self.phys.N
+        Zf = np.zeros((self.s, 6 * N))
+        Zf[:, self._zmap] = Z * self._scales[:, self._zmap]
+        return Zf
+
+    def jacobian(self, Zf: Array, zmap: Array, rmap: Array, want_p: bool = False) -> tuple:
+        """:func:`~contfil.models.filament.kernels.radau_step.stage_jacobian` at ``Zf``."""
+        return _kr.stage_jacobian(Zf, self._q, self.dt, self.W, self.par, self.dpar,
+                                  self.phys.flags, zmap, rmap, self._scales, want_p)
+
+    def _build(self, Z: Array) -> Callable[[Array], Array]:
+        """The Newton matrix at the stage unknowns ``Z``, as a solver ``F -> dZ``.
+
+        ``newton="full"``: the exact stage Jacobian, one LU of ``s nz``.
+        ``newton="simplified"`` (default): every stage's derivatives frozen
+        at the middle stage, so the matrix is ``W (x) M - dt I (x) K``; in
+        the eigenbasis of ``W = T diag(lam) T^-1`` it splits into ``s``
+        systems ``(lam_k M - dt K)`` of size ``nz`` (Hairer & Wanner IV.8),
+        one real and complex pairs: ``s`` small LUs instead of one large.
+        """
+        Zf = self._physical(Z)
+        shape = Z.shape
+        if self.newton == "full":
+            lu = sla.lu_factor(self.jacobian(Zf, self._zmap, self._rmap)[0], check_finite=False)
+            return lambda F: sla.lu_solve(lu, F.ravel(), check_finite=False).reshape(shape)
+        zm = self._zmap
+        sc = self._scales[0].copy()
+        sc[3 * (self.phys.N - 1):] /= self.W[0, 0]  # the loads' scale at g = 1
+        M, K = _kr.frozen_matrices(Zf[self.s // 2], self._q, self.dt, self.par, self.phys.flags,
+                                   zm, self._rmap, sc)
+        lus = [sla.lu_factor(lam * M - self.dt * K, check_finite=False) for lam in self._lam]
+        conv = sc[zm][None, :] / self._scales[:, zm]  # common scale -> each stage's
+        wd = np.diag(self.W)[:, None]
+        T, Ti = self._T, self._Ti
+
+        def solve(F: Array) -> Array:
+            G = Ti @ (wd * F)  # W-form rows, in the eigenbasis
+            Y = np.stack([sla.lu_solve(lu, G[k], check_finite=False)
+                          for k, lu in enumerate(lus)])
+            return (T @ Y).real * conv
+
+        return solve
+
+    def _solve(self) -> Array:
+        """Newton on the stage equations from the predictor; returns the
+        converged scaled stage unknowns (s, nz)."""
+        args = (self._q, positions(tangents(self._q), self.phys.dL), self.dt, self.W, self.par,
+                self.phys.flags, self._zmap, self._rmap, self._scales)
+        res = np.inf
+        for Zc in self._predict():
+            Fc = np.empty_like(Zc)
+            rc = _kr.stage_residual(Zc, Fc, *args)
+            if rc < res or res == np.inf:
+                Z, F, res = Zc, Fc, rc
+            if res < PREDICTOR_OK:
+                break  # the extrapolation is good: skip the fallback's residual
+        its = builds = chord = 0
+        fresh = False
+        if not self.reuse:
+            # the exact matrix at the predictor converges in ~2 iterations on
+            # smooth orbits; the previous step's contracts only at ~0.1-0.4
+            self._lu = None
+        while res > self.tol:
+            if not np.isfinite(res) or its >= self.max_iter:
+                raise (NonFiniteError if not np.isfinite(res) else ConvergenceError)(
+                    f"Radau IIA step {self.k} (dt = {self.dt:.3g}): Newton did not converge, "
+                    f"scaled residual {res:.3e} after {its} iterations (tol {self.tol:.1e})")
+            if self._lu is None:
+                self._lu = self._build(Z)
+                builds += 1
+                fresh = True
+                chord = 0
+            dZ = self._lu(F)
+            Zn = Z - dZ
+            Fn = np.empty_like(F)
+            resn = _kr.stage_residual(Zn, Fn, *args)
+            its += 1
+            if fresh and res < FLOOR * self.tol and not resn < 0.5 * res:
+                # an exact Newton step that no longer halves a residual this
+                # small: the round-off floor of the stage equations (strong
+                # actuation makes the loads large), not a convergence failure
+                break
+            chord += 1
+            if (not fresh and resn > self.tol
+                    and (not resn <= self.rate * res or chord > CHORD_MAX)):
+                # a carried-over matrix that no longer contracts (or only
+                # slowly, for too long): rebuild here
+                self._lu = None
+                continue
+            back = 0
+            while fresh and not (resn <= GROWTH * res) and back < MAX_BACKTRACK:
+                # far from the solution (large steps, strong stiffness):
+                # damp the exact Newton step until the residual decreases
+                dZ *= 0.5
+                Zn = Z - dZ
+                resn = _kr.stage_residual(Zn, Fn, *args)
+                back += 1
+            Z, F, res = Zn, Fn, resn
+            fresh = False
+        self.iterations.append(its)
+        self.builds.append(builds)
+        return Z
+
+    def _accept(self, Z: Array) -> None:
+        """New frames ``exp(u_s) q^k`` (renormalised) and the predictor history."""
+        N = self.phys.N
+        Zf = self._physical(Z)
+        q = np.empty((N, 4))
+        _kr.frames_at(Zf[-1], self._q, q)
+        self._q[:] = q / np.linalg.norm(q, axis=1)[:, None]
+        self._Zf = Zf
+        self.k += 1
+
+    def step(self, n: int = 1) -> Array:
+        """Advance ``n`` steps and return the new state."""
+        if not self._ready:
+            raise RuntimeError("RadauStepper: call reset(u) before stepping")
+        for _ in range(int(n)):
+            self._accept(self._solve())
+        return self.state
+
+
+def default_radau_steps(T: float) -> int:
+    """Radau steps over time ``T`` when none are given: :data:`RADAU_STEPS_PER_PERIOD`
+    per period, refined on long horizons in proportion to ``default_steps``."""
+    return max(RADAU_STEPS_PER_PERIOD,
+               default_steps(T) * RADAU_STEPS_PER_PERIOD // STEPS_PER_PERIOD)
+
+
+def _n_steps(T: float, steps: int | None, dt: float | None) -> int:
+    if not np.isfinite(T) or T < 0:
+        raise DomainError(f"flow: T must be a finite non-negative number, got {T!r}")
+    if steps is not None:
+        if int(steps) < 1:
+            raise ValueError(f"flow: steps must be >= 1, got {steps!r}")
+        return int(steps)
+    if dt is None:
+        return default_radau_steps(T)
+    if not dt > 0:
+        raise ValueError(f"flow: dt must be positive, got {dt!r}")
+    return max(1, math.ceil(T / dt - 1e-9))
+
+
+def flow(model: Any, u: Array, p: Array | None, T: float, steps: int | None = None,
+         dt: float | None = None, **stepper_kw: Any) -> Array:
+    """The flow map ``phi_T(u)`` by ``n`` equal Radau IIA steps.
+
+    ``n = steps``, or ``ceil(T/dt)``, or (neither) :data:`RADAU_STEPS_PER_PERIOD`
+    per period-length ``T`` (scaled like ``default_steps`` on long horizons).
+    ``stepper_kw`` go to :class:`RadauStepper` (``stages``, ``tol``, ...).
+    """
+    n = _n_steps(T, steps, dt)
+    u = np.asarray(u, dtype=float)
+    if not np.all(np.isfinite(u)):
+        raise NonFiniteError("flow: initial state has non-finite entries")
+    if T == 0:
+        return u.copy()
+    st = RadauStepper(model, T / n, p=p, **stepper_kw)
+    st.reset(u)
+    return st.step(n)
+
+
+def flow_tangent(
+    model: Any,
+    u: Array,
+    p: Array | None,
+    T: float,
+    V: Array | None = None,
+    *,
+    steps: int | None = None,
+    want_T: bool = True,
+    want_p: bool = True,
+    samples: int = 0,
+    **stepper_kw: Any,
+) -> FlowTangent:
+    """``phi_T(u)``, ``Dphi_T(u) V``, ``dphi/dT`` and ``dphi/ds`` in one Radau sweep.
+
+    The same contract as :func:`.bdf2_tangent.flow_tangent` (directions
+    ``V`` (dim, k), ``None`` = the monodromy; a 3D model at a planar state
+    with all directions normal to the plane propagates only that block along
+    the planar flow, without ``dT``/``dp``; ``samples`` = states at ``j T/k``).
+    Per step: the stepper's own Newton solve, then the exact stage Jacobian
+    at the converged stages (implicit function theorem), factored once for
+    all directions.
+    """
+    n = _n_steps(T, steps, None)
+    if not (np.isfinite(T) and T > 0):
+        raise ValueError(f"flow_tangent: need T > 0, got T={T!r}")
+    if samples and n % samples:
+        raise ValueError(f"flow_tangent: steps ({n}) must be a multiple of samples ({samples})")
+    u = np.asarray(u, dtype=float)
+    st = RadauStepper(model, T / n, p=p, **stepper_kw)
+    ph = st.phys
+    N, dim = ph.N, st.dim
+    V = np.eye(dim) if V is None else np.asarray(V, dtype=float).reshape(dim, -1)
+    U0 = embed_planar(u) if ph.planar else u
+    V3 = np.column_stack([embed_planar(c) for c in V.T]) if ph.planar else V
+    normal = (not ph.planar and not np.any(U0[0::3]) and not np.any(U0[2::3])
+              and not np.any(V3[1::3]))
+    if normal:
+        want_T = want_p = False
+        tz, tr = normal_maps(N)
+        tangent_phys = ph
+        st = RadauStepper(ph.scene.replace(dimension="planar"), T / n,
+                          strength=_strength(st.par), **stepper_kw)
+        st.reset(U0[1::3])
+        # the tangent uses the 3D physics (same par layout: planar flag aside)
+        st_par = tangent_phys.params(_strength(st.par))
+        st_dpar = tangent_phys.params(_strength(st.par) + 1.0) - st_par
+        flags = tangent_phys.flags
+    else:
+        tz, tr = st._zmap, st._rmap
+        st.reset(u)
+        st_par, st_dpar, flags = st.par, st.dpar, ph.flags
+    kdir = V.shape[1]
+    nd = kdir + int(want_T) + int(want_p)
+    nu = int(_kt.reduced_counts(tz, tr, N)[0])
+    dth = np.zeros((nu, nd))
+    dth[:, :kdir] = _rotations_from_state(U0, V3)[tz[:nu]]
+    ddt = np.zeros(nd)
+    ds = np.zeros(nd)
+    if want_T:
+        ddt[kdir] = 1.0 / n
+    if want_p:
+        ds[-1] = 1.0
+    nz = tz.size
+    samp: list[Array] = []
+    every = n // samples if samples else 0
+    for k in range(n):
+        if every and k % every == 0:
+            samp.append(st.state)
+        Z = st._solve()
+        Zf = st._physical(Z)
+        J, Jth, c_dt, c_s, Bs, Rs = _kr.stage_jacobian(
+            Zf, st._q, st.dt, st.W, st_par, st_dpar, flags, tz, tr, st._scales, want_p)
+        # (the stepper keeps its own Newton matrices, so phi is the flow's bit for bit)
+        lu = sla.lu_factor(J, check_finite=False)
+        rhs = Jth @ dth + np.outer(c_dt, ddt) + np.outer(c_s, ds)
+        dZ = -sla.lu_solve(lu, rhs, check_finite=False)
+        du_s = dZ[(st.s - 1) * nz:(st.s - 1) * nz + nu]
+        dth = Bs @ du_s + Rs @ dth
+        st._accept(Z)
+    if not np.all(np.isfinite(dth)):
+        raise NonFiniteError("flow_tangent: non-finite tangent (singular stage Jacobian)")
+    U1 = state_from_frames(st._q)
+    full3 = np.zeros((U1.size, nd))
+    full3[tz[:nu]] = dth
+    dphi = _state_from_rotations(U1, full3)
+    if ph.planar:
+        dphi, phi = dphi[1::3], project_planar(U1)
+    else:
+        phi = U1
+    return FlowTangent(
+        phi=phi,
+        jvp=dphi[:, :kdir],
+        dT=dphi[:, kdir] if want_T else None,
+        dp=dphi[:, -1] if want_p else None,
+        samples=np.array(samp) if samples else None,
+    )

@@ -1,0 +1,294 @@
+"""Stage equations of the geometric Radau IIA step and their exact Jacobian (numba kernels).
+
+One step ``k -> k+1`` of size ``dt`` from the frames ``q^k`` (positions
+``x^k`` by the robot arm) has ``s`` stages at ``t_k + c_i dt``. Stage ``i``
+carries the unknowns of one BDF2 step (:mod:`.bdf2_residual`, full layout
+``6N``): Lie increments ``u_i`` in the local chart at ``q^k``
+(``q_i = exp(u_i) q^k``, the chart of this step only, so ``|u_i| ~ dt
+|Omega|`` stays far from the singularity at ``pi`` however far the frames
+rotate, as in Runge-Kutta-Munthe-Kaas) and the loads ``Lam_i``, ``Fc_i``,
+``Tc_i``. Collocation of the index-2 system ``x' = V``, ``u' = dexp_inv(u,
+Omega)``, ``x = x(q)`` (Hairer & Wanner, *Solving ODEs II*, VII.4; the
+stage form of :func:`.bdf2_residual.residual`) reads, with ``W = A^{-1}``::
+
+    sum_j w_ij (x_j - x^k) - dt V_i = 0,      sum_j w_ij u_j - dt dexp_inv(u_i, Omega_i) = 0
+
+and divided by ``w_ii > 0`` it is exactly the BDF2 residual of stage ``i``
+with ``(a1, a2, b1, g) = (1, 0, 1, 1/w_ii)``, the history ``x^k -
+sum_{j != i} (w_ij/w_ii)(x_j - x^k)`` in place of ``a1 x^k + a2 x^{k-1}``
+and ``-sum_{j != i} (w_ij/w_ii) u_j`` in place of ``b1 u^k``. So the stage
+residual *is* :func:`.bdf2_residual.residual` (one physics path: the same
+velocities, mobility, loads as ``rhs``), and the stage Jacobian's diagonal
+blocks are the exact BDF2 step Jacobians of :mod:`.bdf2_tangent` at
+``g = 1/w_ii``; the off-diagonal blocks are kinematic (``x_j`` and ``u_j``
+enter linearly up to the robot arm) and have no load columns. Radau IIA is
+stiffly accurate, so ``q^{k+1} = q_s = exp(u_s) q^k``.
+
+Each stage's loads are scaled like a BDF2 step with ``g = 1/w_ii``
+(``sF = dL w_ii/(dt mu_t)``, ``sT = w_ii/(dt mu_r)``), so all columns of
+the stage Jacobian are O(1) whatever ``dt``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .bdf2_residual import frames_at, full_unknowns, residual
+from .bdf2_tangent import INC_ANALYTIC, _step_system, reduced_counts
+from .effects import P_A, P_DL, P_ETA
+from .geometry import positions, tangents
+
+
+def radau_tableau(s: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(c, A)`` of the ``s``-stage Radau IIA method (order ``2s-1``), s = 2 or 3.
+
+    Hairer & Wanner, *Solving ODEs II*, Table IV.5.5/5.6.
+    """
+    if s == 2:
+        return np.array([1.0 / 3.0, 1.0]), np.array([[5.0 / 12.0, -1.0 / 12.0],
+                                                       [3.0 / 4.0, 1.0 / 4.0]])
+    if s == 3:
+        r6 = np.sqrt(6.0)
+        c = np.array([(4.0 - r6) / 10.0, (4.0 + r6) / 10.0, 1.0])
+        A = np.array([
+            [(88.0 - 7.0 * r6) / 360.0, (296.0 - 169.0 * r6) / 1800.0, (-2.0 + 3.0 * r6) / 225.0],
+            [(296.0 + 169.0 * r6) / 1800.0, (88.0 + 7.0 * r6) / 360.0, (-2.0 - 3.0 * r6) / 225.0],
+            [(16.0 - r6) / 36.0, (16.0 + r6) / 36.0, 1.0 / 9.0],
+        ])
+        return c, A
+    raise ValueError(f"radau_tableau: the number of stages must be 2 or 3, got {s!r}")
+
+
+@njit(cache=True)
+def stage_scales(dt: float, W: np.ndarray, par: np.ndarray, N: int) -> np.ndarray:
+    """Per-stage scaling (s, 6N) of the unknowns (increments 1, loads as a
+    BDF2 step with ``g = 1/w_ii``) and the stage coefficients."""
+    s = W.shape[0]
+    mt = 1.0 / (6.0 * np.pi * par[P_ETA] * par[P_A])
+    mr = 1.0 / (8.0 * np.pi * par[P_ETA] * par[P_A] ** 3)
+    out = np.ones((s, 6 * N))
+    for i in range(s):
+        g = 1.0 / W[i, i]
+        for j in range(3 * (N - 1), 6 * N - 3):
+            out[i, j] = par[P_DL] / (g * dt * mt)
+        for j in range(6 * N - 3, 6 * N):
+            out[i, j] = 1.0 / (g * dt * mr)
+    return out
+
+
+@njit(cache=True)
+def _stage_coef(i: int, dt: float, W: np.ndarray) -> np.ndarray:
+    """BDF2 coefficient vector ``[a1, a2, b1, g, dt]`` of stage ``i``."""
+    coef = np.empty(5)
+    coef[0], coef[1], coef[2], coef[3], coef[4] = 1.0, 0.0, 1.0, 1.0 / W[i, i], dt
+    return coef
+
+
+@njit(cache=True)
+def stage_residual(
+    Z: np.ndarray,
+    F: np.ndarray,
+    qk: np.ndarray,
+    xk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+) -> float:
+    """Scaled stage residuals ``F[i] = R_i(Z)`` (s, nz) in place; returns the
+    infinity norm. ``Z`` (s, nz): scaled reduced stage unknowns."""
+    s = Z.shape[0]
+    N = qk.shape[0]
+    dL = par[P_DL]
+    Xs = np.empty((s, N, 3))
+    Us = np.empty((s, 6 * N))
+    q = np.empty((N, 4))
+    for j in range(s):
+        zf = full_unknowns(Z[j], zmap, scales[j], N)
+        Us[j] = zf
+        frames_at(zf, qk, q)
+        Xs[j] = positions(tangents(q), dL)
+    X = np.empty((N, 3))
+    rfull = np.empty(6 * N)
+    xh = np.empty((N, 3))
+    xz = np.zeros((N, 3))
+    uh = np.zeros(6 * N)
+    res = 0.0
+    for i in range(s):
+        for n in range(N):
+            for k in range(3):
+                xh[n, k] = xk[n, k]
+        for m in range(3 * (N - 1)):
+            uh[m] = 0.0
+        for j in range(s):
+            if j == i:
+                continue
+            w = W[i, j] / W[i, i]
+            for n in range(N):
+                for k in range(3):
+                    xh[n, k] -= w * (Xs[j, n, k] - xk[n, k])
+            for m in range(3 * (N - 1)):
+                uh[m] -= w * Us[j, m]
+        residual(Z[i], F[i], qk, xh, xz, uh, _stage_coef(i, dt, W), par, flags, zmap, rmap,
+                 scales[i], q, X, rfull)
+        for m in range(F.shape[1]):
+            a = abs(F[i, m])
+            if not a <= res:  # NaN propagates
+                res = a
+    return res
+
+
+@njit(cache=True)
+def arm_matrix(t: np.ndarray, zmap: np.ndarray, rmap: np.ndarray, nu: int, npos: int,
+               dL: float) -> np.ndarray:
+    """Robot arm ``dX/dth / dL`` (npos, nu) on the selected position rows and
+    rotation components (segment 0 clamped; ``dX_n/dth_m = w_nm dL (dth_m x
+    t_m)``, ``w = 1`` for ``m < n``, ``1/2`` for ``m = n``)."""
+    P = np.zeros((npos, nu))
+    for i in range(npos):
+        r = rmap[i]
+        n, k = r // 3, r % 3
+        for j in range(nu):
+            m = zmap[j] // 3 + 1
+            c = zmap[j] % 3
+            if m <= n and k != c:
+                w = 0.5 if n == m else 1.0
+                l_ = 3 - k - c
+                sg = 1.0 if (k - c) % 3 == 2 else -1.0
+                P[i, j] = w * sg * t[m, l_]
+    return P
+
+
+@njit(cache=True)
+def stage_jacobian(
+    Zf: np.ndarray,
+    qk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    dpar: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+    want_p: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Exact derivative of the stage equations at physical stage unknowns ``Zf`` (s, 6N).
+
+    Returns ``(J, Jth, c_dt, c_s, B_s, Rot_s)``: ``J = dF/dZ`` (s nz, s nz)
+    in the scaled unknowns selected by ``zmap``/``rmap`` (which may be a
+    tangent block other than the stepper's), ``Jth = dF/dth^k`` (s nz, nu)
+    for spatial rotations of the frames ``q^k``, ``c_dt = dF/ddt`` and
+    ``c_s = dF/ds`` (s nz,) at fixed physical unknowns, and the reduced
+    ``dexp(u_s)``, ``Rot(u_s)`` blocks of the last stage, which give the new
+    frames' perturbation ``dth^{k+1} = B_s du_s + Rot_s dth^k``.
+    """
+    s = Zf.shape[0]
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nu, npos = reduced_counts(zmap, rmap, N)
+    dL = par[P_DL]
+    J = np.zeros((s * nz, s * nz))
+    Jth = np.zeros((s * nz, nu))
+    c_dt = np.empty(s * nz)
+    c_s = np.empty(s * nz)
+    xz = np.zeros((N, 3))
+    uz = np.zeros(6 * N)
+    Bs = np.empty((s, nu, nu))
+    Rs = np.empty((s, nu, nu))
+    Arms = np.empty((s, npos, nu))
+    for i in range(s):
+        Ji, Jthi, cdi, csi, Br, Rr, ti = _step_system(
+            Zf[i], qk, xz, xz, uz, _stage_coef(i, dt, W), par, dpar, flags, zmap, rmap,
+            scales[i], want_p, INC_ANALYTIC)
+        o = i * nz
+        for a in range(nz):
+            for b in range(nz):
+                J[o + a, o + b] = Ji[a, b]
+            for b in range(nu):
+                Jth[o + a, b] = Jthi[a, b]
+            c_dt[o + a] = cdi[a]
+            c_s[o + a] = csi[a]
+        Bs[i] = Br
+        Rs[i] = Rr
+        Arms[i] = arm_matrix(ti, zmap, rmap, nu, npos, dL)
+    # orientation row of each selected increment component (segment m+1, comp c)
+    rinv = -np.ones(6 * N, dtype=np.int64)
+    for a in range(nz):
+        rinv[rmap[a]] = a
+    # the history x^k enters row block i as -(sum_j w_ij/w_ii) x^k
+    # (the BDF2 Jth has no history term: its tangent adds -a1 dx^k itself)
+    Armk = arm_matrix(tangents(qk), zmap, rmap, nu, npos, dL)
+    for i in range(s):
+        wsum = 0.0
+        for j in range(s):
+            wsum += W[i, j] / W[i, i]
+        for a in range(npos):
+            for b in range(nu):
+                Jth[i * nz + a, b] -= wsum * Armk[a, b]
+        for j in range(s):
+            if j == i:
+                continue
+            w = W[i, j] / W[i, i]
+            AB = Arms[j] @ Bs[j]
+            AR = Arms[j] @ Rs[j]
+            for a in range(npos):
+                for b in range(nu):
+                    J[i * nz + a, j * nz + b] += w * AB[a, b]
+                    Jth[i * nz + a, b] += w * AR[a, b]
+            for b in range(nu):
+                a = rinv[3 * N + 3 * (zmap[b] // 3 + 1) + zmap[b] % 3]
+                if a >= 0:
+                    J[i * nz + a, j * nz + b] += w
+    return J, Jth, c_dt, c_s, Bs[s - 1].copy(), Rs[s - 1].copy()
+
+
+@njit(cache=True)
+def frozen_matrices(
+    zf: np.ndarray,
+    qk: np.ndarray,
+    dt: float,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(M, K)`` (nz, nz) of simplified Newton, frozen at one stage ``zf``.
+
+    The stage equations in ``W`` form, ``sum_j w_ij m(z_j) - dt k(z_i) = 0``
+    with the kinematic part ``m = ((x - x^k)/dL, u)`` and the velocity part
+    ``k = (V/dL, dexp_inv(u, Omega))``, are linearised with every stage's
+    ``dm/dz`` and ``dk/dz`` replaced by their values ``M``, ``K`` at ``zf``
+    (unknowns scaled by ``scale``). ``M`` is the robot arm times ``dexp(u)``
+    on the position rows and the identity on the orientation rows;
+    ``K = (M - J_1)/dt`` with ``J_1`` the exact BDF2 step Jacobian at
+    ``g = 1``.
+    """
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nu, npos = reduced_counts(zmap, rmap, N)
+    xz = np.zeros((N, 3))
+    uz = np.zeros(6 * N)
+    coef = np.empty(5)
+    coef[0], coef[1], coef[2], coef[3], coef[4] = 1.0, 0.0, 1.0, 1.0, dt
+    J1, _, _, _, Br, _, t = _step_system(zf, qk, xz, xz, uz, coef, par, par, flags, zmap, rmap,
+                                         scale, False, INC_ANALYTIC)
+    M = np.zeros((nz, nz))
+    AB = arm_matrix(t, zmap, rmap, nu, npos, par[P_DL]) @ Br
+    for a in range(npos):
+        for b in range(nu):
+            M[a, b] = AB[a, b]
+    rinv = -np.ones(6 * N, dtype=np.int64)
+    for a in range(nz):
+        rinv[rmap[a]] = a
+    for b in range(nu):
+        a = rinv[3 * N + 3 * (zmap[b] // 3 + 1) + zmap[b] % 3]
+        if a >= 0:
+            M[a, b] = 1.0
+    K = (M - J1) / dt
+    return M, K
