@@ -160,3 +160,28 @@ def test_sizes_validated_up_front() -> None:
         loads_spec(too_long)
     ok = loads_spec(SCENE + f"\n[simulate]\nt_end = {MAX_SIM_STEPS * 1e-3:g}\ndt = 1e-3\n")
     assert ok.simulate["t_end"] == MAX_SIM_STEPS * 1e-3
+
+
+def test_integrator_table_selects_the_filament_time_stepper(tmp_path: Path) -> None:
+    from contfil.app.study import build_model
+
+    paper = (ROOT / "branches" / "tip_ff.toml").read_text()
+    # the paper specs choose Radau; without the table it is BDF2
+    assert build_model(loads_spec(paper)).model.integrator == "radau"
+    base = re.sub(r'(?m)^\[integrator\]\nmethod = "radau"\n', "", paper)
+    assert "[integrator]" not in base
+    m = build_model(loads_spec(base)).model
+    assert m.integrator == "bdf2" and m.flow_steps_min == 400
+    m = build_model(loads_spec(base + '\n[integrator]\nmethod = "radau"\n')).model
+    assert m.integrator == "radau" and m.flow_steps_min == 80
+    # the planar reduced model (beating's subspace) keeps the stepper
+    red = m.symmetries.invariant_subspaces["planar_xz"].reduced_model()
+    assert red.integrator == "radau"
+    m = build_model(loads_spec(base + '\n[integrator]\nmethod = "bdf2"\n'
+                               'steps_per_period = 800\n')).model
+    assert m.integrator == "bdf2" and m.flow_steps_min == 800
+    with pytest.raises(SpecError, match=r"^integrator\.method: expected one of \['bdf2', "
+                                        r"'radau'\], got 'rk4'"):
+        loads_spec(base + '\n[integrator]\nmethod = "rk4"\n')
+    with pytest.raises(SpecError, match=r"^integrator: only a filament"):
+        loads_spec("[model]\nname = 'pitchfork'\n[integrator]\nmethod = 'radau'\n")

@@ -152,6 +152,15 @@ BRANCH_KINDS = ("equilibrium", "rotating_wave", "periodic_orbit", "relative_peri
 # key: (checker, default, required, description). The descriptions are the
 # spec reference (the user guide lists the same keys; a test keeps them in step).
 SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
+    "integrator": {
+        "method": (_choice("bdf2", "radau"), "bdf2", False,
+                   "time stepper of the filament's flows: bdf2 (the paper's, second "
+                   "order) or radau (Radau IIA, fifth order, same cost per period at "
+                   "80 steps)"),
+        "steps_per_period": (_integer(4), None, False,
+                             "steps per period of the periodic-orbit flows (default 400 "
+                             "for bdf2, 80 for radau)"),
+    },
     "model": {
         "name": (_string, None, True, "catalog model name (contfil.models.catalog)"),
         "params": (_table, {}, False, "parameter overrides {name = value}"),
@@ -218,7 +227,7 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
     },
 }
 
-TOP_KEYS = ("scene", "model", "continuation", "explorer", "output", "simulate")
+TOP_KEYS = ("scene", "model", "integrator", "continuation", "explorer", "output", "simulate")
 
 
 @dataclass
@@ -236,6 +245,7 @@ class Spec:
     simulate: dict[str, Any]
     scene: dict[str, Any] | None = None
     model: dict[str, Any] | None = None
+    integrator: dict[str, Any] | None = None
     path: Path | None = None
     text: str = ""
     raw: dict[str, Any] = field(default_factory=dict)
@@ -289,6 +299,12 @@ def parse_spec(doc: Mapping[str, Any], path: str | Path | None = None, text: str
         num = _number()
         model["params"] = {str(k): num(f"model.params.{k}", v)
                            for k, v in model["params"].items()}
+    integ = None
+    if "integrator" in doc:
+        if not has_scene:
+            raise SpecError("integrator: only a filament ([scene]) has a time stepper to "
+                            "choose; a [model] is integrated by the engine")
+        integ = _check_table("integrator", doc["integrator"])
     # [continuation] is required for `run`, optional for `simulate`.
     cont = _check_table("continuation", doc.get("continuation", {}),
                         required="continuation" in doc)
@@ -324,7 +340,7 @@ def parse_spec(doc: Mapping[str, Any], path: str | Path | None = None, text: str
             f"simulate.t_end: t_end/dt = {sim['t_end'] / sim['dt']:.3g} time steps, at most "
             f"{MAX_SIM_STEPS:.0e}; shorten t_end or enlarge dt")
     return Spec(continuation=cont, explorer=expl, output=out, simulate=sim, scene=scene,
-                model=model, path=None if path is None else Path(path), text=text,
+                model=model, integrator=integ, path=None if path is None else Path(path), text=text,
                 raw=dict(doc))
 
 

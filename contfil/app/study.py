@@ -65,7 +65,7 @@ def default_run_dir(spec: Spec, resume: bool = False, base: str | Path = "runs")
 
 def build_model(spec: Spec) -> ModelInfo:
     """The model a spec describes (its ``[scene]`` or ``[model]`` table)."""
-    return _build_model(scene=spec.scene, model=spec.model)
+    return _build_model(scene=spec.scene, model=spec.model, integrator=spec.integrator)
 
 
 def continuation_parameter(spec: Spec, info: ModelInfo) -> str:

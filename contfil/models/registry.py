@@ -77,13 +77,19 @@ def _with_params(model: Any, params: dict[str, float]) -> Any:
 
 
 def build_model(scene: dict[str, Any] | None = None,
-                model: dict[str, Any] | None = None) -> ModelInfo:
-    """The model a spec describes: ``FilamentModel`` for a ``[scene]`` table,
-    else the catalog model named by a ``[model]`` table (``name``, ``params``)."""
+                model: dict[str, Any] | None = None,
+                integrator: dict[str, Any] | None = None) -> ModelInfo:
+    """The model a spec describes: ``FilamentModel`` for a ``[scene]`` table
+    (with the time stepper of an ``[integrator]`` table: ``method``,
+    ``steps_per_period``), else the catalog model named by a ``[model]``
+    table (``name``, ``params``)."""
     if scene is not None:
         from contfil.models.filament.model import FilamentModel
 
-        m = FilamentModel({"scene": scene})
+        integ = integrator or {}
+        m = FilamentModel({"scene": scene}, integrator=str(integ.get("method") or "bdf2"))
+        if integ.get("steps_per_period"):
+            m.flow_steps_min = int(integ["steps_per_period"])
         return ModelInfo(model=m, param=m.scene.param_name)
     if model is None:
         raise SpecError("spec: needs a [scene] table (filament) or a [model] table (catalog)")
