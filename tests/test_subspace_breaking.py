@@ -163,3 +163,54 @@ def test_switch_ignores_trivial_directions_in_the_critical_mode():
     # the first point is on the tilted branch, not a time shift of the planar cycle
     assert start.x0[2] ** 2 == pytest.approx(C - start.p0, abs=1e-7)
     assert abs(start.x0[2]) > 0.05
+
+
+def _rhs2(u, q):
+    # the tilted plane plus a second out-of-plane direction w, damped at a
+    # rate K independent of beta: multiplier exp(-2π K) ≈ 0.93 throughout
+    beta, c = q
+    x, y, z, w = u
+    r2 = x * x + y * y
+    return np.array([beta * x - y - x * r2, x + beta * y - y * r2, (c - r2) * z - z**3,
+                     -K_W * w])
+
+
+K_W = 0.0115
+
+
+def two_mode_model() -> FunctionModel:
+    defaults = {"beta": 0.2, "c": C}
+    plane = InvariantSubspace(
+        "plane",
+        embed=lambda v: np.array([v[0], v[1], 0.0, 0.0]),
+        project=lambda u: np.asarray(u)[:2].copy(),
+        reduced_model=lambda: FunctionModel(_rhs_plane, 2, defaults, name="plane"),
+    )
+    sym = Symmetries(reflections={"flip_z": np.diag([1.0, 1.0, -1.0, 1.0])},
+                     invariant_subspaces={"plane": plane})
+    return FunctionModel(_rhs2, 4, defaults, name="two_modes", symmetries=sym,
+                         u0=np.zeros(4))
+
+
+def test_pitchfork_found_when_another_out_of_plane_mode_is_nearer_the_circle():
+    """A large step carries the z multiplier exp(2π(c - β)) from 1.3 to 0.6
+    across +1 while the w multiplier 0.93 is nearer the circle at both ends:
+    the crossing is still the pitchfork at exactly β = c (not left to the
+    safety net)."""
+    m = two_mode_model()
+    pb = PeriodicOrbitProblem(m, "beta", steps=60, subspace="plane", nev=4)
+    beta0 = C - 0.045  # exp(2π 0.045) ≈ 1.33
+    x0 = np.array([np.sqrt(beta0), 0.0, 2 * np.pi])
+    s = ContinuationSettings(ds=0.13, ds_min=0.13, ds_max=0.13, max_points=3, p_max=0.8,
+                             event_tol=1e-10)
+    br = Continuation(pb, x0, beta0, s).run()
+    # the step that crossed: z multiplier > 1 before, < 0.93 after
+    mults = [np.sort(np.abs(pt.eigenvalues[~pt.trivial])) for pt in br.points[:2]]
+    assert mults[0][-1] > 1.2 and mults[1][-1] == pytest.approx(np.exp(-2 * np.pi * K_W),
+                                                                  rel=1e-5)
+    kinds = [(sp.kind, sp.data.get("event")) for sp in br.special_points]
+    assert (CYCLE_BRANCH_POINT, "subspace_breaking") in kinds, kinds
+    assert ("stability_change", "stability_change") not in kinds
+    sp = next(sp for sp in br.special_points if sp.kind == CYCLE_BRANCH_POINT)
+    assert sp.point.p == pytest.approx(C, abs=1e-6)
+    assert sp.data["multiplier"] == pytest.approx(1.0, abs=1e-8)

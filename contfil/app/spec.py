@@ -8,7 +8,10 @@ Tables (see ``docs/user-guide.md`` for every key):
 - ``[continuation]``: parameter, start, range, step sizes, tolerances;
 - ``[explorer]``: switching depth, which bifurcations to follow;
 - ``[output]``: run directory, plots, diagram observable;
-- ``[simulate]``: time integration for ``contfil simulate``.
+- ``[simulate]``: time integration for ``contfil simulate``;
+- ``[start]``: start the root branch from a state stored by an earlier run
+  (a run directory, a branch of it, a point on it) instead of from the
+  model's initial state.
 
 Every key is checked; a bad spec raises :class:`~contfil.errors.SpecError`
 whose message starts with the dotted key (``continuation.ds: expected a
@@ -121,6 +124,15 @@ def _cluster(key: str, v: Any) -> str:
     return v
 
 
+def _start_point(key: str, v: Any) -> str | float:
+    if isinstance(v, str):
+        return _choice(*START_POINT_WORDS)(key, v)
+    if isinstance(v, bool) or not isinstance(v, int | float):
+        raise SpecError(f"{key}: expected one of {list(START_POINT_WORDS)} or a parameter "
+                        f"value, got {type(v).__name__} {v!r}")
+    return _number()(key, v)
+
+
 def _table(key: str, v: Any) -> dict[str, Any]:
     if not isinstance(v, Mapping):
         raise SpecError(f"{key}: expected a table, got {type(v).__name__} {v!r}")
@@ -145,6 +157,9 @@ MAX_SIM_STEPS = 10_000_000
 # Special-point kinds a spec may ask the explorer to follow.
 KINDS = ("fold", "branch_point", "hopf", "double_hopf", "cycle_fold", "cycle_branch_point",
          "period_doubling", "torus")
+
+# Words [start].point takes besides a parameter value (contfil.explore.start).
+START_POINT_WORDS = ("first", "last", "first_stable", "last_stable")
 
 # Kinds of branch the explorer may compute.
 BRANCH_KINDS = ("equilibrium", "rotating_wave", "periodic_orbit", "relative_periodic_orbit")
@@ -225,9 +240,27 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
                          "amplitude of the initial perturbation of the upright state"),
         "seed": (_integer(0), 0, False, "random seed of the perturbation"),
     },
+    "start": {
+        "run": (_string, None, True,
+                "run directory of an earlier `contfil run` (relative to the spec file's "
+                "folder)"),
+        "branch": (_string, None, True,
+                   "stored branch: its id ('B2') or a kind only one branch has "
+                   "('periodic_orbit')"),
+        "point": (_start_point, "last", False,
+                  f"point on it: one of {list(START_POINT_WORDS)} (branch order) or a "
+                  "parameter value (the nearest point)"),
+        "subspace": (_string, "auto", False,
+                     "invariant subspace a stored cycle is solved in: a name, 'auto' (the "
+                     "one the stored state lies in) or 'none' (the full model)"),
+        "steps": (_integer(3), None, False,
+                  "shooting steps per period of a stored cycle of a model without its own "
+                  "time-stepper (default 100)"),
+    },
 }
 
-TOP_KEYS = ("scene", "model", "integrator", "continuation", "explorer", "output", "simulate")
+TOP_KEYS = ("scene", "model", "integrator", "continuation", "explorer", "output",
+            "simulate", "start")
 
 
 @dataclass
@@ -236,7 +269,8 @@ class Spec:
 
     ``scene`` is the raw ``[scene]`` table (validated by the filament
     package when the model is built), ``model`` the ``[model]`` table;
-    exactly one of them is set.
+    exactly one of them is set. ``start`` is the checked ``[start]`` table
+    (``None``: the root branch starts from the model's initial state).
     """
 
     continuation: dict[str, Any]
@@ -246,6 +280,7 @@ class Spec:
     scene: dict[str, Any] | None = None
     model: dict[str, Any] | None = None
     integrator: dict[str, Any] | None = None
+    start: dict[str, Any] | None = None
     path: Path | None = None
     text: str = ""
     raw: dict[str, Any] = field(default_factory=dict)
@@ -339,8 +374,16 @@ def parse_spec(doc: Mapping[str, Any], path: str | Path | None = None, text: str
         raise SpecError(
             f"simulate.t_end: t_end/dt = {sim['t_end'] / sim['dt']:.3g} time steps, at most "
             f"{MAX_SIM_STEPS:.0e}; shorten t_end or enlarge dt")
+    start = None
+    if "start" in doc:
+        start = _check_table("start", doc["start"])
+        for key in ("start", "initial_state", "kind"):
+            if key in doc.get("continuation", {}):
+                raise SpecError(f"continuation.{key}: not with [start] (the stored state is "
+                                "the starting point and its branch gives the kind)")
     return Spec(continuation=cont, explorer=expl, output=out, simulate=sim, scene=scene,
-                model=model, integrator=integ, path=None if path is None else Path(path), text=text,
+                model=model, integrator=integ, start=start,
+                path=None if path is None else Path(path), text=text,
                 raw=dict(doc))
 
 

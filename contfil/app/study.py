@@ -20,6 +20,7 @@ from contfil.explore.continuer import engine_continuer
 from contfil.explore.explorer import Explorer, ExplorerSettings
 from contfil.explore.progress import ProgressDisplay
 from contfil.explore.seeds import Seed
+from contfil.explore.start import stored_start
 from contfil.explore.switchers import default_switchers
 from contfil.graph.branch_graph import BranchGraph
 from contfil.models.registry import ModelInfo
@@ -117,10 +118,31 @@ def check_observable(name: str | None, known: list[str], where: str) -> None:
         raise SpecError(f"{where}: unknown observable {name!r}; known: {known}")
 
 
+def start_run_dir(spec: Spec) -> Path:
+    """``start.run`` as a path: a relative one is taken from the spec file's
+    folder (the current directory for a spec without a file)."""
+    run = Path(str((spec.start or {})["run"]))
+    if not run.is_absolute() and spec.path is not None:
+        run = spec.path.parent / run
+    return run
+
+
 def root_seed(spec: Spec, info: ModelInfo) -> Seed:
-    """Seed of the root branch (an equilibrium problem at the start value)."""
+    """Seed of the root branch: an equilibrium problem at the start value, or
+    the stored state ``[start]`` names (:func:`contfil.explore.start.stored_start`)."""
     model = info.model
     param = continuation_parameter(spec, info)
+    if spec.start is not None:
+        st, c = spec.start, spec.continuation
+        seed, choice = stored_start(
+            start_run_dir(spec), model, branch=st["branch"], point=st["point"],
+            subspace=st["subspace"], steps=st["steps"], direction=int(c["direction"]),
+            both_directions=bool(c["both_directions"]),
+            p_range=None if c["range"] is None else tuple(c["range"]))
+        if seed.problem.param != param:
+            raise SpecError(f"start.branch: the stored branch is continued in "
+                            f"{seed.problem.param!r}, this study in {param!r}")
+        return seed
     params = np.array(model.default_params(), dtype=float)
     ip = list(model.param_names).index(param)
     c = spec.continuation
@@ -266,6 +288,8 @@ def _run(spec: Spec, info: ModelInfo, seed: Seed, settings: ContinuationSettings
         "param": str(seed.problem.param),
         "range": list(spec.continuation["range"]),
     }
+    if "start" in seed.info:
+        meta["start"] = dict(seed.info["start"])
     observers: list[Any] = [display]
     if executor is not None:
         from contfil.explore.distributed import WorkersFile

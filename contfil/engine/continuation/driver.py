@@ -386,8 +386,20 @@ class Continuation:
         t0 = time.perf_counter()
         evals0 = pb.rhs_evals or 0
         X0, tau0 = prev.X, prev.ctx.tangent
-        X, ctx, info = self._correct(X0, tau0)
-        X, ctx, info, stop = self._land_on_bound(X0, tau0, X, ctx, info)
+        while True:
+            X, ctx, info = self._correct(X0, tau0)
+            try:
+                X, ctx, info, stop = self._land_on_bound(X0, tau0, X, ctx, info)
+                break
+            except (ConvergenceError, DomainError, NonFiniteError, np.linalg.LinAlgError):
+                # Landing on the window's bound failed outright (a flow failed
+                # on the interpolated guess): a shorter step ends nearer the
+                # bound, with a better guess. At ds_min the point past the
+                # bound is kept, as for a landing that does not converge.
+                if self.ds <= s.ds_min * DS_MIN_SLACK:
+                    stop = STOP_P_MAX if float(X[-1]) > s.p_max else STOP_P_MIN
+                    break
+                self.ds = max(self.ds * s.shrink, s.ds_min)
         pt = self._make_point(ctx, info, t0, evals0)
         rec = Accepted(X, ctx, pt)
         new_special = sorted(self._detect(prev, rec) if self.events else [], key=lambda t: t[0])

@@ -77,7 +77,8 @@ class SubspaceBreakingEvent(Event):
     than half its norm inside, by :func:`subspace_fraction` — breaks the
     symmetry that keeps the subspace invariant. Detection: the count of such
     multipliers above +1 and the total unstable count both change;
-    localisation on ``log μ`` of the candidate nearest +1.
+    localisation on ``|log μ|`` of the candidate nearest +1, signed by that
+    count (so the bracket holds whichever candidate is nearest at the ends).
 
     The new branch leaves the subspace: it is followed in the full model
     (:func:`~contfil.engine.switching.cycles.cycles_leaving_subspace`; with a
@@ -109,7 +110,22 @@ class SubspaceBreakingEvent(Event):
         return [0] if (v0[0] != v1[0] and v0[1] != v1[1]) else []
 
     def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
-        return lambda ctx: _log_nearest_circle(self._cands(ctx)[0])
+        # Signed by the count of candidates above +1 (as on the left end or
+        # not), sized by the candidate nearest the circle. The bare log of
+        # the nearest candidate loses the bracket when the crossing one is
+        # not the nearest at both ends of the step (a large step: another
+        # out-of-subspace multiplier, inside the circle, lies nearer at
+        # both ends; the crossing then went to the safety net). This one
+        # changes sign exactly where the count does, and it is continuous
+        # there: the crossing multiplier is 1, the nearest, at the root.
+        left = self.values(ctx0)[0]
+
+        def g(ctx: EventContext) -> float:
+            c = self._cands(ctx)[0]
+            d = abs(_log_nearest_circle(c))
+            return (-1.0 if float(np.sum(c > 1.0)) == left else 1.0) * d
+
+        return g
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         c, idx, st = self._cands(ctx)

@@ -1,0 +1,98 @@
+"""What lies beyond beating's annihilation (issue 12): classify by simulation.
+
+Beyond the last stable branch point of a stored high-actuation run
+(``branches/data/<model>_high/``) no computed branch is stable. This driver
+starts a 3-D simulation there, from a stored orbit perturbed out of its
+plane, integrates it with the model's BDF2 stepper (``dt = T/400`` of the
+starting orbit), discards a transient, and classifies the attractor with
+:func:`contfil.models.filament.longrun.classify_run` (Poincaré section,
+spectrum, largest Lyapunov exponent by two-trajectory finite differences).
+With ``--store`` the result is added to the stored graph as a state node
+joined to the bifurcation named by ``--born-from`` (a special-point label).
+
+Usage::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/high_actuation_beyond.py \\
+        --model dis_ff --branch B1 --p 220 [--born-from STABILITY_CHANGE2] [--store]
+
+Prints the label, its evidence and one JSON line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from contfil.app.spec import load_spec  # noqa: E402
+from contfil.app.study import build_model  # noqa: E402
+from contfil.models.filament.longrun import classify_run  # noqa: E402
+from contfil.store.run_store import load_run_graph, save_graph_graphml, save_graph_json  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", required=True)
+    ap.add_argument("--branch", required=True, help="stored branch to start from")
+    ap.add_argument("--p", type=float, required=True, help="parameter value to simulate at")
+    ap.add_argument("--periods", type=int, default=200, help="classified periods")
+    ap.add_argument("--transient", type=int, default=100, help="discarded periods")
+    ap.add_argument("--lyapunov", type=int, default=200,
+                    help="Lyapunov maps of one period each (0: none)")
+    ap.add_argument("--born-from", default=None, help="special-point label for the graph")
+    ap.add_argument("--store", action="store_true", help="add the state to the stored graph")
+    args = ap.parse_args()
+    run = ROOT / "branches" / "data" / f"{args.model}_high"
+    model = build_model(load_spec(ROOT / "branches" / f"{args.model}_high.toml")).model
+    g = load_run_graph(run)
+    br = g.branch(args.branch)
+    k = int(np.argmin([abs(pt.p - args.p) for pt in br.points]))
+    pt = br.points[k]
+    T = float(pt.extra["period"])
+    steps = 400
+    dt = T / steps
+    params = np.asarray(pt.params, dtype=float).copy()
+    ip = list(model.param_names).index(br.param)
+    params[ip] = args.p
+    # a small out-of-plane push, so that a planar orbit is not kept planar by symmetry
+    (sub,) = model.symmetries.invariant_subspaces.values()
+    rng = np.random.default_rng(5)
+    v = rng.standard_normal(model.dim)
+    w = v - np.asarray(sub.embed(np.asarray(sub.project(v))))
+    u0 = np.asarray(pt.u, dtype=float) + 1e-4 * w / np.linalg.norm(w)
+    t0 = time.perf_counter()
+    samples_per_period = 16
+    res, node = classify_run(model, u0, params, dt, args.periods * samples_per_period,
+                             sample_every=steps // samples_per_period,
+                             transient_steps=args.transient * steps,
+                             lyapunov_samples=args.lyapunov, lyapunov_map_steps=steps)
+    wall = time.perf_counter() - t0
+    ev = node["evidence"]
+    ev.update({"start_branch": args.branch, "start_index": k, "start_p": float(pt.p),
+               "wall_s": wall, "period_of_start_orbit": T})
+    out = {"model": args.model, "p": args.p, "label": res.label, "wall_s": round(wall, 1),
+           "evidence": ev}
+    print(f"{args.model} at {br.param} = {args.p}: {res.label} ({wall:.0f} s); "
+          f"reasons {ev['reasons']}; Lyapunov {ev.get('lyapunov')} ± {ev.get('lyapunov_error')}",
+          flush=True)
+    if args.store:
+        sid = g.add_state(res.label, br.param, args.p, ev,
+                          born_from=args.born_from or args.branch,
+                          index=None if args.born_from else k)
+        save_graph_json(g, run / "graph.json")
+        if (run / "graph.graphml").exists():
+            save_graph_graphml(g, run / "graph.graphml")
+        out["state"] = {"id": sid, "label": g.state(sid)["label"]}
+    print(json.dumps(out, default=str))
+
+
+if __name__ == "__main__":
+    main()

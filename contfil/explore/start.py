@@ -1,0 +1,237 @@
+"""Start a study from a state stored by an earlier run.
+
+A spec's ``[start]`` table (see ``docs/user-guide.md``) names a run
+directory, a branch of its graph and a point on it; :func:`stored_start`
+turns that into the root :class:`~contfil.explore.seeds.Seed` of a new
+study: the stored solution, with its problem rebuilt the way the switchers
+build it (so that continuing from the stored point follows the same branch
+with the same discretisation, and the events and switches along it work as
+they did in the stored run).
+
+Problems by branch kind:
+
+- ``equilibrium``: :class:`EquilibriumProblem`;
+- ``rotating_wave``: :class:`RotatingWaveProblem` (the model's first
+  continuous symmetry);
+- ``periodic_orbit``: :class:`PeriodicOrbitProblem` by shooting, inside the
+  invariant subspace the stored orbit lies in (``subspace = "auto"``), at the
+  model's own time-stepper resolution with period means (a model with a
+  ``flow``), else on the engine's Radau flow with ``steps`` steps;
+- ``relative_periodic_orbit``: :class:`RelativePeriodicOrbitProblem`, the
+  same discretisation with a drift unknown.
+
+A stored cycle is restarted by shooting even if it was computed by
+collocation: a stored point holds the state at the phase origin and the
+period, which is a shooting orbit's unknowns (the first corrector step
+re-converges it on the new discretisation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from contfil.engine.branch import Branch
+from contfil.engine.problems.equilibrium import EquilibriumProblem
+from contfil.engine.problems.rotating_wave import RotatingWaveProblem
+from contfil.engine.problems.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
+from contfil.errors import ContfilError, SpecError
+from contfil.explore.seeds import Seed
+from contfil.explore.switchers import PERIOD_MEANS
+from contfil.graph.branch_graph import BranchGraph
+from contfil.store.run_store import load_run_graph
+
+#: Words ``point`` accepts besides a parameter value.
+POINT_WORDS = ("first", "last", "last_stable", "first_stable")
+#: ``subspace`` words besides a subspace name.
+SUBSPACE_WORDS = ("auto", "none")
+#: A stored state lies in an invariant subspace if embedding its projection
+#: gives it back to this relative accuracy (the stored solutions converged to
+#: residuals ~1e-10; a state off the subspace is off by O(1) relative).
+SUBSPACE_RTOL = 1e-8
+
+
+@dataclass
+class StartChoice:
+    """Where a study starts: the stored branch and point, resolved."""
+
+    run: Path
+    branch_id: str
+    index: int
+    p: float
+    subspace: str | None
+
+    def describe(self) -> dict[str, Any]:
+        """JSON data for the run's graph meta (where the root came from)."""
+        return {"run": str(self.run), "branch": self.branch_id, "index": self.index,
+                "p": self.p, "subspace": self.subspace}
+
+
+def select_branch(graph: BranchGraph, ref: str, where: str = "start.branch") -> str:
+    """The id of branch ``ref`` in ``graph``: a branch id (``"B2"``) or a
+    branch kind (``"periodic_orbit"``) that exactly one branch has."""
+    ids = graph.branch_ids()
+    if ref in ids:
+        return ref
+    kinds = sorted({graph.branch(b).kind for b in ids})
+    same = [b for b in ids if graph.branch(b).kind == ref]
+    if not same:
+        raise SpecError(f"{where}: no branch {ref!r} in the stored run; its branches are "
+                        f"{ids} of kinds {kinds}")
+    if len(same) > 1:
+        raise SpecError(f"{where}: {len(same)} branches of kind {ref!r} ({same}); "
+                        "name one by its id")
+    return same[0]
+
+
+def select_point(branch: Branch, ref: str | float, p_range: tuple[float, float] | None,
+                 where: str = "start.point") -> int:
+    """Index of point ``ref`` on ``branch``: ``"first"``, ``"last"`` (in branch
+    order), ``"first_stable"`` / ``"last_stable"`` (the first / last point
+    with no unstable eigenvalue or multiplier), or a parameter value (the
+    nearest point; the branch may pass it more than once, the first nearest
+    wins). The point must lie in ``p_range`` (the study's window)."""
+    pts = branch.points
+    if not pts:
+        raise SpecError(f"{where}: the stored branch has no points")
+    if isinstance(ref, str):
+        if ref == "first":
+            k = 0
+        elif ref == "last":
+            k = len(pts) - 1
+        elif ref in ("first_stable", "last_stable"):
+            stable = [i for i, pt in enumerate(pts) if pt.n_unstable == 0]
+            if not stable:
+                known = sorted({pt.n_unstable for pt in pts}, key=lambda v: (v is None, v))
+                raise SpecError(f"{where}: {ref!r}: no stable point on the branch "
+                                f"(unstable counts {known})")
+            k = stable[0] if ref == "first_stable" else stable[-1]
+        else:
+            raise SpecError(f"{where}: expected one of {list(POINT_WORDS)} or a parameter "
+                            f"value, got {ref!r}")
+    else:
+        p = np.array([pt.p for pt in pts], dtype=float)
+        k = int(np.argmin(np.abs(p - float(ref))))
+    pk = float(pts[k].p)
+    if p_range is not None and not p_range[0] <= pk <= p_range[1]:
+        raise SpecError(f"{where}: the chosen point has {branch.param} = {pk:.6g}, outside "
+                        f"continuation.range {list(p_range)}")
+    return k
+
+
+def stored_subspace(model: Any, u: np.ndarray, ref: str, where: str = "start.subspace"
+                    ) -> str | None:
+    """The invariant subspace a cycle is solved in: ``ref`` by name,
+    ``"none"`` (the full model), or ``"auto"``: the model's subspace that the
+    stored state ``u`` lies in (``None`` if none does)."""
+    subs = dict(getattr(getattr(model, "symmetries", None), "invariant_subspaces", {}) or {})
+    if ref == "none":
+        return None
+    if ref != "auto":
+        if ref not in subs:
+            raise SpecError(f"{where}: model {model.name!r} has no invariant subspace {ref!r}; "
+                            f"known: {list(subs)} (or 'auto', 'none')")
+        if not _in_subspace(subs[ref], u):
+            raise SpecError(f"{where}: the stored state does not lie in subspace {ref!r}")
+        return ref
+    inside = [name for name, s in subs.items() if _in_subspace(s, u)]
+    # Several nested subspaces may hold it: the first declared (the model's
+    # order) is the one the switchers use.
+    return inside[0] if inside else None
+
+
+def _in_subspace(sub: Any, u: np.ndarray) -> bool:
+    back = np.asarray(sub.embed(np.asarray(sub.project(u), dtype=float)), dtype=float)
+    return bool(np.linalg.norm(back - u) <= SUBSPACE_RTOL * max(1.0, float(np.linalg.norm(u))))
+
+
+def start_problem(model: Any, kind: str, param: str, params: np.ndarray,
+                  subspace: str | None, steps: int | None) -> Any:
+    """The problem of a stored branch of ``kind``, built as the switchers
+    build it (see the module docstring)."""
+    if kind == "equilibrium":
+        return EquilibriumProblem(model, param, params)
+    if kind == "rotating_wave":
+        return RotatingWaveProblem(model, param, params)
+    if kind in ("periodic_orbit", "relative_periodic_orbit"):
+        if callable(getattr(model, "flow", None)):
+            kw: dict[str, Any] = {"steps": int(getattr(model, "flow_steps_min", 100)),
+                                  "period_means": PERIOD_MEANS}
+        else:
+            kw = {"steps": int(steps or 100)}
+        if kind == "periodic_orbit":
+            return PeriodicOrbitProblem(model, param, params, subspace=subspace, **kw)
+        return RelativePeriodicOrbitProblem(model, param, params, symmetry_index=0, **kw)
+    raise SpecError(f"start.branch: a branch of kind {kind!r} cannot be restarted")
+
+
+def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float = "last",
+                 subspace: str = "auto", steps: int | None = None, direction: int = 1,
+                 both_directions: bool = False,
+                 p_range: tuple[float, float] | None = None) -> tuple[Seed, StartChoice]:
+    """The root seed of a study that starts from a stored state.
+
+    Parameters
+    ----------
+    run:
+        A run directory of ``contfil run`` (its ``graph.json``).
+    model:
+        The study's model (the stored run's model: its state size is checked).
+    branch, point, subspace:
+        Which stored branch and point (:func:`select_branch`,
+        :func:`select_point`), and the invariant subspace of a cycle
+        (:func:`stored_subspace`).
+    steps:
+        Shooting steps per period of a cycle of a model without a ``flow``.
+    direction:
+        +1 / -1: the sense of the parameter to go first.
+    both_directions:
+        Also continue the other way from the stored point.
+    p_range:
+        The study's parameter window; the stored point must lie in it.
+
+    Returns
+    -------
+    The seed (its tangent is left to the engine, oriented by ``direction``)
+    and the resolved :class:`StartChoice`.
+    """
+    run = Path(run)
+    if not run.is_dir():
+        raise SpecError(f"start.run: no run directory {str(run)!r}")
+    try:
+        graph = load_run_graph(run)
+    except ContfilError as exc:
+        raise SpecError(f"start.run: {exc}") from None
+    bid = select_branch(graph, branch)
+    br = graph.branch(bid)
+    k = select_point(br, point, p_range)
+    pt = br.points[k]
+    if br.param not in model.param_names:
+        raise SpecError(f"start.branch: the stored branch is continued in {br.param!r}, a "
+                        f"parameter model {model.name!r} does not have")
+    u = np.asarray(pt.u, dtype=float)
+    if u.size != int(model.dim):
+        raise SpecError(f"start.run: stored states have {u.size} entries, model "
+                        f"{model.name!r} has {model.dim}: not the same model")
+    sub = None
+    if br.kind == "periodic_orbit":
+        sub = stored_subspace(model, u, subspace)
+    elif subspace not in SUBSPACE_WORDS:
+        raise SpecError(f"start.subspace: only a periodic_orbit is solved in a subspace; the "
+                        f"stored branch {bid} is a {br.kind}")
+    problem = start_problem(model, br.kind, br.param, np.asarray(pt.params, dtype=float),
+                            sub, steps)
+    tail = [float(pt.extra[key]) for key in ("omega", "period", "drift") if key in pt.extra]
+    x0 = np.concatenate([u if sub is None else np.asarray(problem.subspace.project(u)), tail])
+    if x0.size != problem.n:
+        raise SpecError(f"start.branch: point {k} of {bid} has {x0.size} unknowns, its "
+                        f"{br.kind} problem {problem.n} (the stored point lacks "
+                        f"{['omega', 'period', 'drift']} data)")
+    choice = StartChoice(run=run, branch_id=bid, index=k, p=float(pt.p), subspace=sub)
+    seed = Seed(problem=problem, x0=x0, p0=float(pt.p), direction=int(direction),
+                both_directions=both_directions, label=f"{bid}[{k}] of {run.name}",
+                info={"start": choice.describe()})
+    return seed, choice
