@@ -582,3 +582,35 @@ def test_reentry_event_rejects_landing_on_the_parent_and_on_the_mirror():
     assert "reversed" in ev.rejects_step(ctx(0.05), ctx(-0.06), pred(0.07))
     # a step that starts in the plane (the parent itself) is never rejected
     assert ev.rejects_step(ctx(0.0), ctx(1e-12), pred(0.0)) is None
+
+
+def test_a_turned_copy_of_a_planar_filament_state_counts_as_in_the_plane():
+    """The filament's planar beating turned about the clamp axis by ε lies
+    off the x-z plane by ε L u, yet it is the parent orbit (tip FF's
+    bent-beating landed on such a copy at its merge, 1.4e-3 off the plane,
+    and the re-entry event never fired). The re-entry measure removes the
+    part along the rotation's tangent: O(ε²) is left. A genuinely bent state
+    keeps its out-of-plane part."""
+    from types import SimpleNamespace
+
+    from contfil.models.filament import FilamentModel
+    from contfil.models.filament.integrators.bdf2 import rotate_state_z
+
+    root = Path(__file__).resolve().parents[1]
+    m = FilamentModel(root / "branches" / "tip_ff.toml")
+    g = BranchGraph.load_json(root / "branches" / "data" / "tip_ff" / "graph.json")
+    beat = next(b for b in g.branch_ids() if g.branch(b).kind == PERIODIC_ORBIT)
+    u = np.asarray(g.branch(beat).points[-1].u, dtype=float)
+    ev = SubspaceReentryEvent("planar_xz")
+
+    def dev(U: np.ndarray) -> float:
+        return ev._deviation(SimpleNamespace(problem=SimpleNamespace(model=m, state=lambda x: x),
+                                             x=U))
+
+    assert dev(u) < 1e-14
+    for eps in (1e-3, 1e-2):
+        turned = rotate_state_z(u, eps)
+        assert dev(turned) < 2 * eps**2  # was ~eps before
+    qp1 = next(b for b in g.branch_ids() if g.branch(b).kind == RELATIVE_PERIODIC_ORBIT)
+    bent = np.asarray(g.branch(qp1).points[len(g.branch(qp1).points) // 2].u, dtype=float)
+    assert dev(bent) > 1e-2

@@ -35,7 +35,10 @@ class SubspaceReentryEvent(Event):
     A branch born at a symmetry-breaking pitchfork (solved in the full
     model) often merges back into its parent at a second pitchfork: its
     out-of-subspace part ``w = (I - P) U`` (``U`` the state at the phase
-    origin, ``P = embed ∘ project``) goes to zero there and changes sign as
+    origin, ``P = embed ∘ project``, less its part along the continuous
+    symmetries' tangents ``L_j P U``: a copy of a subspace state moved along
+    the group orbit counts as in the subspace) goes to zero there and
+    changes sign as
     pseudo-arclength carries on onto the mirror half. Test function
     ``<ŵ_prev, w>`` (``ŵ_prev`` = ``w/|w|`` at the last accepted point),
     localised by the driver to ``w = 0``; a zero with ``|w| > accept_tol |U|``
@@ -75,7 +78,22 @@ class SubspaceReentryEvent(Event):
             raise SpecError(f"SubspaceReentryEvent: model {model.name!r} has no invariant "
                             f"subspace {self.subspace!r}")
         U = np.asarray(ctx.problem.state(ctx.x), dtype=float)
-        return U - np.asarray(sub.embed(sub.project(U)), dtype=float), U, sub
+        us = np.asarray(sub.embed(sub.project(U)), dtype=float)
+        w = U - us
+        # A copy of a subspace state moved along a continuous symmetry (the
+        # filament's planar beating turned about the clamp axis by ε) lies
+        # off the subspace by ε L u_s, yet it *is* the parent orbit: the
+        # corrector of a merging branch may land on such a copy. The part of
+        # w along the group orbit's tangents L_j u_s is removed, so such a
+        # copy counts as in the subspace (to O(ε²)).
+        ts = [np.asarray(c.tangent(us), dtype=float)
+              for c in getattr(model.symmetries, "continuous", None) or []]
+        ts = [t for t in ts if float(np.linalg.norm(t)) > 1e-12 * max(
+            float(np.linalg.norm(us)), 1e-300)]
+        if ts:
+            Q, _ = np.linalg.qr(np.column_stack(ts))
+            w = w - Q @ (Q.T @ w)
+        return w, U, sub
 
     def values(self, ctx: EventContext) -> Array:
         w, _, _ = self._w(ctx)
