@@ -296,3 +296,15 @@ def test_sigterm_stops_cleanly_and_resumes(reference, tmp_path: Path) -> None:
     assert err.decode().strip().endswith("interrupted (resume with --resume)")
     res = run_study(load_spec(spec_path), out=run, resume=True)
     _assert_equal_runs(ref.graph, res.graph)
+
+
+def test_graph_that_is_not_utf8_is_named_plainly(tmp_path: Path) -> None:
+    # a truncated multi-byte character: the codec says "unexpected end of
+    # data", which reads like a crash; the message says what is wrong instead
+    from contfil.store.run_store import load_run_graph
+
+    (tmp_path / "graph.json").write_bytes(b"\xc2")
+    with pytest.raises(ContfilError, match=r"is not a readable contfil graph \(not UTF-8 "
+                                           r"text at byte 0\)") as info:
+        load_run_graph(tmp_path)
+    assert "unexpected" not in str(info.value)

@@ -347,7 +347,12 @@ def load_run_graph(run: str | Path) -> Any:
         if run_dir is not None and _has_task_logs(run_dir):
             hint = (f"; `contfil run {run_dir / 'spec.toml'} --out {run_dir} --resume` "
                     "rebuilds it from the task logs")
-        reason = " ".join(str(exc).split())[:200] or type(exc).__name__
+        if isinstance(exc, UnicodeDecodeError):
+            # the codec's own wording ("unexpected end of data") reads like a
+            # crash; say what is wrong with the file instead
+            reason = f"not UTF-8 text at byte {exc.start}"
+        else:
+            reason = " ".join(str(exc).split())[:200] or type(exc).__name__
         raise ContfilError(f"{path} is not a readable contfil graph ({reason}){hint}") from None
 
 
