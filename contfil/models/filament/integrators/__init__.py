@@ -11,6 +11,11 @@ at isolated ``T``, so the map stays smooth in ``T`` where shooting uses it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
+
+import numpy as np
+
+from contfil.errors import DomainError
 
 #: Steps per period: the paper's ``dt = T/400`` (Methods, "Time-Stepping").
 STEPS_PER_PERIOD = 400
@@ -25,4 +30,24 @@ def default_steps(T: float) -> int:
     return max(STEPS_PER_PERIOD, int(math.ceil(abs(T) / DT_MAX - 1e-9)))
 
 
-__all__ = ["DT_MAX", "STEPS_PER_PERIOD", "default_steps"]
+def step_count(T: float, steps: int | None, dt: float | None,
+               default: Callable[[float], int] | None = None) -> int:
+    """Steps of a flow over time ``T``: ``steps``, else ``ceil(T/dt)``, else
+    ``default(T)`` (a stepper's own default; ``None``: one of the two must be
+    given). One clear error for each bad input."""
+    if not np.isfinite(T) or T < 0:
+        raise DomainError(f"flow: T must be a finite non-negative number, got {T!r}")
+    if steps is not None:
+        if int(steps) < 1:
+            raise ValueError(f"flow: steps must be >= 1, got {steps!r}")
+        return int(steps)
+    if dt is None:
+        if default is None:
+            raise ValueError("flow: give steps or dt")
+        return int(default(T))
+    if not dt > 0:
+        raise ValueError(f"flow: dt must be positive, got {dt!r}")
+    return max(1, math.ceil(T / dt - 1e-9))
+
+
+__all__ = ["DT_MAX", "STEPS_PER_PERIOD", "default_steps", "step_count"]

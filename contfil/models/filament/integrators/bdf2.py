@@ -83,29 +83,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.errors import DomainError, NonFiniteError
+from contfil.errors import NonFiniteError
 
 from ..kernels.geometry import frames_from_state, state_from_frames, tangents
 from ..physics import FilamentPhysics, embed_planar, frame_observables, project_planar
 from ..scene import Scene
-from . import default_steps
+from . import default_steps, step_count
 from .bdf2_stepper import BDF2Stepper, StepDiagnostics
 
 Array = NDArray[np.float64]
 
 
 def _n_steps(T: float, steps: int | None, dt: float | None) -> int:
-    if not np.isfinite(T) or T < 0:
-        raise DomainError(f"flow: T must be a finite non-negative number, got {T!r}")
-    if steps is not None:
-        if int(steps) < 1:
-            raise ValueError(f"flow: steps must be >= 1, got {steps!r}")
-        return int(steps)
-    if dt is None:
-        raise ValueError("flow: give steps or dt")
-    if not dt > 0:
-        raise ValueError(f"flow: dt must be positive, got {dt!r}")
-    return max(1, math.ceil(T / dt - 1e-9))
+    return step_count(T, steps, dt, None)
 
 
 def flow(

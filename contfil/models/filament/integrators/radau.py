@@ -37,7 +37,6 @@ Newton tolerance), as shooting needs.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any
 
@@ -45,14 +44,14 @@ import numpy as np
 import scipy.linalg as sla
 from numpy.typing import NDArray
 
-from contfil.errors import ConvergenceError, DomainError, NonFiniteError
+from contfil.errors import ConvergenceError, NonFiniteError
 from contfil.protocol import FlowTangent
 
 from ..kernels import bdf2_tangent as _kt
 from ..kernels import radau_step as _kr
 from ..kernels.geometry import frames_from_state, positions, state_from_frames, tangents
 from ..physics import FilamentPhysics, embed_planar, project_planar
-from . import STEPS_PER_PERIOD, default_steps
+from . import STEPS_PER_PERIOD, default_steps, step_count
 from .bdf2_stepper import _maps, _scene_of, _strength_from_params
 from .bdf2_tangent import _rotations_from_state, _state_from_rotations, _strength, normal_maps
 
@@ -360,17 +359,7 @@ def default_radau_steps(T: float) -> int:
 
 
 def _n_steps(T: float, steps: int | None, dt: float | None) -> int:
-    if not np.isfinite(T) or T < 0:
-        raise DomainError(f"flow: T must be a finite non-negative number, got {T!r}")
-    if steps is not None:
-        if int(steps) < 1:
-            raise ValueError(f"flow: steps must be >= 1, got {steps!r}")
-        return int(steps)
-    if dt is None:
-        return default_radau_steps(T)
-    if not dt > 0:
-        raise ValueError(f"flow: dt must be positive, got {dt!r}")
-    return max(1, math.ceil(T / dt - 1e-9))
+    return step_count(T, steps, dt, default_radau_steps)
 
 
 def flow(model: Any, u: Array, p: Array | None, T: float, steps: int | None = None,
