@@ -35,8 +35,12 @@ SPEC = DISTRIBUTED_SPEC.replace("range = [0.0, 30.0]", "range = [0.0, 10.0]").re
 # Stand-in batch system: "submit" runs the job script in its own session
 # (so "cancel" can end the worker and its nanny together) and answers like
 # sbatch/qsub; "cancel" kills that session.
+# Like a real sbatch, spool the job script before returning: dask-jobqueue
+# deletes its temporary script as soon as the submit command returns, so a
+# job started from "$1" in the background may find it gone (this hung CI once).
 SUBMIT = """#!/usr/bin/env bash
-setsid bash "$1" > "$FAKE_QUEUE_DIR/job.$$.log" 2>&1 < /dev/null &
+cp "$1" "$FAKE_QUEUE_DIR/job.$$.sh"
+setsid bash "$FAKE_QUEUE_DIR/job.$$.sh" > "$FAKE_QUEUE_DIR/job.$$.log" 2>&1 < /dev/null &
 echo "Submitted batch job $!"
 """
 CANCEL = """#!/usr/bin/env bash
