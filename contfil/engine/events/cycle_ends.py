@@ -29,6 +29,11 @@ Array = NDArray[np.float64]
 JUMP_FACTOR = 10.0
 
 
+def _relative(w: Array, U: Array) -> float:
+    """``|w| / |U|``: the relative out-of-subspace part."""
+    return float(np.linalg.norm(w)) / max(float(np.linalg.norm(U)), 1e-300)
+
+
 class SubspaceReentryEvent(Event):
     """End of a symmetry-broken branch: the orbit re-enters an invariant subspace.
 
@@ -71,13 +76,17 @@ class SubspaceReentryEvent(Event):
         self._ref: Array | None = None
         self._problem_id: int | None = None
 
-    def _w(self, ctx: EventContext) -> tuple[Array, Array, Any]:
+    def _subspace(self, ctx: EventContext) -> Any:
         model = ctx.problem.model  # type: ignore[attr-defined]
         sub = model.symmetries.invariant_subspaces.get(self.subspace)
         if sub is None:
             raise SpecError(f"SubspaceReentryEvent: model {model.name!r} has no invariant "
                             f"subspace {self.subspace!r}")
-        U = np.asarray(ctx.problem.state(ctx.x), dtype=float)
+        return sub
+
+    def _off_subspace(self, ctx: EventContext, U: Array) -> Array:
+        """``w`` of the state ``U`` (see the class docstring)."""
+        sub = self._subspace(ctx)
         us = np.asarray(sub.embed(sub.project(U)), dtype=float)
         w = U - us
         # A copy of a subspace state moved along a continuous symmetry (the
@@ -86,6 +95,7 @@ class SubspaceReentryEvent(Event):
         # corrector of a merging branch may land on such a copy. The part of
         # w along the group orbit's tangents L_j u_s is removed, so such a
         # copy counts as in the subspace (to O(ε²)).
+        model = ctx.problem.model  # type: ignore[attr-defined]
         ts = [np.asarray(c.tangent(us), dtype=float)
               for c in getattr(model.symmetries, "continuous", None) or []]
         ts = [t for t in ts if float(np.linalg.norm(t)) > 1e-12 * max(
@@ -93,7 +103,11 @@ class SubspaceReentryEvent(Event):
         if ts:
             Q, _ = np.linalg.qr(np.column_stack(ts))
             w = w - Q @ (Q.T @ w)
-        return w, U, sub
+        return w
+
+    def _w(self, ctx: EventContext) -> tuple[Array, Array, Any]:
+        U = np.asarray(ctx.problem.state(ctx.x), dtype=float)
+        return self._off_subspace(ctx, U), U, self._subspace(ctx)
 
     def values(self, ctx: EventContext) -> Array:
         w, _, _ = self._w(ctx)
@@ -111,7 +125,7 @@ class SubspaceReentryEvent(Event):
 
     def _deviation(self, ctx: EventContext) -> float:
         w, U, _ = self._w(ctx)
-        return float(np.linalg.norm(w) / max(np.linalg.norm(U), 1e-300))
+        return _relative(w, U)
 
     def rejects_step(self, ctx0: EventContext, ctx1: EventContext,
                      x_pred: Array) -> str | None:
@@ -131,18 +145,17 @@ class SubspaceReentryEvent(Event):
 
         Either costs a genuine re-entry at most a halved step.
         """
-        w0, U0, sub = self._w(ctx0)
-        n0 = float(np.linalg.norm(w0))
-        d0 = n0 / max(float(np.linalg.norm(U0)), 1e-300)
+        w0, U0, _ = self._w(ctx0)
+        d0 = _relative(w0, U0)
         if d0 <= self.accept_tol:
             return None  # the step starts in the subspace: nothing to leave
         w1, U1, _ = self._w(ctx1)
-        d1 = float(np.linalg.norm(w1)) / max(float(np.linalg.norm(U1)), 1e-300)
+        d1 = _relative(w1, U1)
         if d1 <= self.accept_tol and d0 > JUMP_FACTOR * d1:
             return (f"the corrector landed in the subspace {self.subspace!r} (onto the "
                     f"parent): off-subspace part {d0:.2e} -> {d1:.2e}")
         Up = np.asarray(ctx1.problem.state(np.asarray(x_pred[:-1], dtype=float)), dtype=float)
-        wp = Up - np.asarray(sub.embed(sub.project(Up)), dtype=float)
+        wp = self._off_subspace(ctx1, Up)
         if float(w0 @ wp) > 0.0 > float(w0 @ w1):
             return (f"the corrector reversed the off-subspace part the predictor carried "
                     f"(onto the mirror branch or across {self.subspace!r})")
@@ -150,7 +163,7 @@ class SubspaceReentryEvent(Event):
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         w, U, sub = self._w(ctx)
-        dev = float(np.linalg.norm(w) / max(np.linalg.norm(U), 1e-300))
+        dev = _relative(w, U)
         if dev > self.accept_tol:
             return None
         data: dict[str, Any] = {
