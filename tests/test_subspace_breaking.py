@@ -214,3 +214,64 @@ def test_pitchfork_found_when_another_out_of_plane_mode_is_nearer_the_circle():
     sp = next(sp for sp in br.special_points if sp.kind == CYCLE_BRANCH_POINT)
     assert sp.point.p == pytest.approx(C, abs=1e-6)
     assert sp.data["multiplier"] == pytest.approx(1.0, abs=1e-8)
+
+
+def _rhs_pair(u, q):
+    # the plane's cycle r² = β, and two out-of-plane directions (z, w) whose
+    # linearisation on the cycle is B(β) = [[m, 1], [d, m]] with m = C - β,
+    # d = (β - 0.3)(β - 0.4): exponents m ± sqrt(d)
+    beta, c = q
+    x, y, z, w = u
+    r2 = x * x + y * y
+    m = c - r2
+    d = (r2 - 0.3) * (r2 - 0.4)
+    s2 = z * z + w * w
+    return np.array([beta * x - y - x * r2, x + beta * y - y * r2,
+                     m * z + w - s2 * z, d * z + m * w - s2 * w])
+
+
+def colliding_pair_model() -> FunctionModel:
+    defaults = {"beta": 0.25, "c": C}
+    plane = InvariantSubspace(
+        "plane",
+        embed=lambda v: np.array([v[0], v[1], 0.0, 0.0]),
+        project=lambda u: np.asarray(u)[:2].copy(),
+        reduced_model=lambda: FunctionModel(_rhs_plane, 2, defaults, name="plane"),
+    )
+    sym = Symmetries(reflections={"flip_zw": np.diag([1.0, 1.0, -1.0, -1.0])},
+                     invariant_subspaces={"plane": plane})
+    return FunctionModel(_rhs_pair, 4, defaults, name="colliding_pair", symmetries=sym,
+                         u0=np.zeros(4))
+
+
+#: Where the smaller exponent m - sqrt(d) vanishes: (C - β)² = (β - 0.3)(β - 0.4),
+#: i.e. 0.13 = 0.3 β for C = 0.5.
+BETA_CROSS = 0.13 / 0.3
+
+
+@pytest.mark.parametrize("ds", [0.25, 0.05])
+def test_pitchfork_found_past_a_collision_of_two_unstable_multipliers(ds):
+    """Two real out-of-plane multipliers above +1 collide at β = 0.3 and leave
+    the real axis (a complex pair outside the circle), meet again at β = 0.4,
+    and the smaller crosses +1 at exactly β = 13/30. The count of real
+    candidates above +1 goes 2 → 0 → 2 → 1: only the last change is a
+    crossing. One step over all three (ds = 0.25) and small steps (0.05) both
+    give the pitchfork at 13/30, never a point at a collision, and never the
+    safety net (tip SF beating's merge with bent-beating, b1 ≈ 2237)."""
+    m = colliding_pair_model()
+    pb = PeriodicOrbitProblem(m, "beta", steps=60, subspace="plane", nev=4)
+    beta0 = 0.25
+    x0 = np.array([np.sqrt(beta0), 0.0, 2 * np.pi])
+    s = ContinuationSettings(ds=ds, ds_min=ds, ds_max=ds, max_points=int(0.3 / ds) + 2,
+                             p_max=0.55, event_tol=1e-10)
+    br = Continuation(pb, x0, beta0, s).run()
+    first = br.points[0]
+    mu0 = np.sort(np.abs(first.eigenvalues[~first.trivial]))[-2:]
+    # both out-of-plane multipliers real and above +1 at the start
+    assert mu0[0] > 1.5 and first.n_unstable == 2
+    kinds = [(sp.kind, sp.data.get("event")) for sp in br.special_points]
+    assert kinds.count((CYCLE_BRANCH_POINT, "subspace_breaking")) == 1, kinds
+    assert not [k for k in kinds if k[0] == "stability_change"], kinds
+    sp = next(sp for sp in br.special_points if sp.kind == CYCLE_BRANCH_POINT)
+    assert sp.point.p == pytest.approx(BETA_CROSS, abs=1e-6)
+    assert sp.data["multiplier"] == pytest.approx(1.0, abs=1e-8)

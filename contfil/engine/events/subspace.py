@@ -118,12 +118,25 @@ class SubspaceBreakingEvent(Event):
         # both ends; the crossing then went to the safety net). This one
         # changes sign exactly where the count does, and it is continuous
         # there: the crossing multiplier is 1, the nearest, at the root.
+        #
+        # The count also changes where two real candidates above +1 collide
+        # and leave the real axis as a complex pair (or meet again): by two,
+        # with no multiplier at +1 (tip SF beating at b1 ≈ 2236.3 is such a
+        # collision, 0.9 before its pitchfork). Only a crossing of +1 changes
+        # the count's parity, so when the ends differ in parity the sign is
+        # the parity: the root is then the crossing, never a collision. When
+        # they agree (two crossings in one step, or a collision), the sign is
+        # the count itself and the first change is localised as before.
         left = self.values(ctx0)[0]
+        right = self.values(ctx1)[0]
+        by_parity = (left - right) % 2 == 1
 
         def g(ctx: EventContext) -> float:
             c = self._cands(ctx)[0]
             d = abs(_log_nearest_circle(c))
-            return (-1.0 if float(np.sum(c > 1.0)) == left else 1.0) * d
+            n = float(np.sum(c > 1.0))
+            same = (n - left) % 2 == 0 if by_parity else n == left
+            return (-1.0 if same else 1.0) * d
 
         return g
 
