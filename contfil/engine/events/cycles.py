@@ -119,6 +119,13 @@ class CycleBranchPointEvent(BranchPointEvent):
 
     def __init__(self) -> None:
         super().__init__(kind=CYCLE_BRANCH_POINT, name="cycle_branch_point")
+        # Where a branch ends on its parent (a symmetry-broken orbit merging
+        # back into the subspace, a drifting orbit collapsing onto a rotating
+        # wave) its own system is singular: the end is the branch point,
+        # reported once, by the end event that joins it to the parent's. A
+        # sign change of the determinant in that step (tip FF's bent-beating
+        # at its merge, |det| ~ 1e-166) is not a second one.
+        self.suppressed_by = ("subspace_reentry", "rotating_wave_collapse")
 
     def _dense(self, ctx: EventContext) -> bool:
         return bool(ctx.problem.dense) or ctx.apply_bordered is None
