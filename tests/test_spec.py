@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from contfil.app.spec import KINDS, SCHEMA, load_spec, loads_spec
@@ -180,6 +181,14 @@ def test_integrator_table_selects_the_filament_time_stepper(tmp_path: Path) -> N
     m = build_model(loads_spec(base + '\n[integrator]\nmethod = "bdf2"\n'
                                'steps_per_period = 800\n')).model
     assert m.integrator == "bdf2" and m.flow_steps_min == 800
+    # the key reaches the flow itself (it used to set an attribute nobody read)
+    assert m.flow_steps(0.05) == 800
+    red = m.symmetries.invariant_subspaces["planar_xz"].reduced_model()
+    assert red.flow_steps_min == 800
+    u0 = m.initial_state() + 1e-3 * np.sin(np.arange(m.dim))
+    p0 = m.default_params()
+    assert np.array_equal(m.flow(u0, p0, 0.05), m.flow(u0, p0, 0.05, steps=800))
+    assert not np.array_equal(m.flow(u0, p0, 0.05), m.flow(u0, p0, 0.05, steps=400))
     with pytest.raises(SpecError, match=r"^integrator\.method: expected one of \['bdf2', "
                                         r"'radau'\], got 'rk4'"):
         loads_spec(base + '\n[integrator]\nmethod = "rk4"\n')

@@ -87,9 +87,9 @@ def build_model(scene: dict[str, Any] | None = None,
         from contfil.models.filament.model import FilamentModel
 
         integ = integrator or {}
-        m = FilamentModel({"scene": scene}, integrator=str(integ.get("method") or "bdf2"))
-        if integ.get("steps_per_period"):
-            m.flow_steps_min = int(integ["steps_per_period"])
+        spp = integ.get("steps_per_period")
+        m = FilamentModel({"scene": scene}, integrator=str(integ.get("method") or "bdf2"),
+                          steps_per_period=int(spp) if spp else None)
         return ModelInfo(model=m, param=m.scene.param_name)
     if model is None:
         raise SpecError("spec: needs a [scene] table (filament) or a [model] table (catalog)")

@@ -93,21 +93,30 @@ class FixedStepFlow:
     def __getattr__(self, name: str) -> Any:
         return getattr(self.base, name)
 
-    def flow(self, u: Array, p: Array, T: float) -> Array:
-        """``phi_T(u)`` by ``steps`` BDF2 steps of size ``T/steps``."""
+    def flow_steps(self, T: float) -> int:
+        """The wrapper's fixed step count, whatever ``T``."""
+        return self.steps
+
+    def flow(self, u: Array, p: Array, T: float, steps: int | None = None) -> Array:
+        """``phi_T(u)`` by ``steps`` (default: the wrapper's) BDF2 steps of
+        size ``T/steps``; a caller splitting the period (multiple shooting)
+        or refining it (error estimates) passes its own count."""
         self.flow_calls += 1
-        return _stepper.flow(self.base, u, p, T, steps=self.steps, **self.stepper_kw)
+        n = self.steps if steps is None else int(steps)
+        return _stepper.flow(self.base, u, p, T, steps=n, **self.stepper_kw)
 
     def flow_tangent(self, u: Array, p: Array, T: float, V: Array | None = None,
-                     param_index: int | None = None, samples: int = 0) -> Any:
+                     param_index: int | None = None, samples: int = 0,
+                     steps: int | None = None) -> Any:
         """Exact tangent of :meth:`flow` (same ``steps``): one sweep, counted
         in ``tangent_calls`` (its cost in flows is measured in
         ``benchmarks/orbit_cost.py``)."""
         self.tangent_calls += 1
+        n = self.steps if steps is None else int(steps)
         # period samples only where they fall on steps (else the caller flows)
-        k = samples if samples and self.steps % samples == 0 else 0
+        k = samples if samples and n % samples == 0 else 0
         return self.base.flow_tangent(u, p, T, V, param_index=param_index, samples=k,
-                                      steps=self.steps, fd=self.tangent_fd,
+                                      steps=n, fd=self.tangent_fd,
                                       increments=self.tangent_increments, **self.stepper_kw)
 
 

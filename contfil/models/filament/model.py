@@ -65,7 +65,7 @@ class FilamentModel:
     exact_tangents: bool = True
 
     def __init__(self, scene: Scene | Mapping[str, Any] | str | Path,
-                 integrator: str = "bdf2") -> None:
+                 integrator: str = "bdf2", steps_per_period: int | None = None) -> None:
         if not isinstance(scene, Scene):
             scene = load_scene(scene)
         if integrator not in INTEGRATORS:
@@ -82,6 +82,11 @@ class FilamentModel:
             # switchers read it): 80 Radau steps give a period error ~1e-8
             # for the cost of BDF2 at T/400 (docs/accuracy.md)
             self.flow_steps_min = RADAU_STEPS_PER_PERIOD
+        if steps_per_period is not None:
+            if int(steps_per_period) < 4:
+                raise ValueError("FilamentModel: steps_per_period must be >= 4, "
+                                 f"got {steps_per_period!r}")
+            self.flow_steps_min = int(steps_per_period)
         self.scene = scene
         self.N = scene.N
         self.dL = scene.dL
@@ -150,6 +155,14 @@ class FilamentModel:
     flow_steps_min: int = STEPS_PER_PERIOD
     flow_dt_max: float = DT_MAX
 
+    def flow_steps(self, T: float) -> int:
+        """Steps of a flow over time ``T`` when none are given:
+        ``flow_steps_min`` per period (400 for BDF2, 80 for Radau, or the
+        spec's ``[integrator] steps_per_period``), refined on long horizons
+        so that no step exceeds the stepper's ``DT_MAX`` scaled alike."""
+        n = int(self.flow_steps_min)
+        return max(n, default_steps(T) * n // STEPS_PER_PERIOD)
+
     def _flow(
         self, u: Array, p: Array, T: float, steps: int | None = None, dt: float | None = None,
         **stepper_kw: Any,
@@ -164,11 +177,13 @@ class FilamentModel:
         if self.integrator == "radau":
             from .integrators import radau
 
+            if steps is None and dt is None:
+                steps = self.flow_steps(T)
             return radau.flow(self, u, p, T, steps=steps, dt=dt, **stepper_kw)
         from .integrators import bdf2 as stepper
 
         if steps is None and dt is None:
-            steps = default_steps(T)
+            steps = self.flow_steps(T)
         return stepper.flow(self, u, p, T, steps=steps, dt=dt, **stepper_kw)
 
     def flow_tangent(
@@ -182,13 +197,13 @@ class FilamentModel:
         if self.integrator == "radau":
             from .integrators import radau
 
-            n = radau.default_radau_steps(T) if steps is None else int(steps)
+            n = self.flow_steps(T) if steps is None else int(steps)
             k = samples if samples and n % samples == 0 else 0
             return radau.flow_tangent(self, u, p, T, V, steps=n,
                                       want_p=param_index is not None, samples=k, **stepper_kw)
         from .integrators.bdf2_tangent import flow_tangent
 
-        n = default_steps(T) if steps is None else int(steps)
+        n = self.flow_steps(T) if steps is None else int(steps)
         k = samples if samples and n % samples == 0 else 0
         return flow_tangent(self, u, p, T, V, steps=n, want_p=param_index is not None,
                             samples=k, **stepper_kw)
@@ -298,7 +313,8 @@ class FilamentModel:
             return np.asarray(U)[1::3].copy()
 
         def reduced() -> FilamentModel:
-            return FilamentModel(scene.replace(dimension="planar"), integrator=self.integrator)
+            return FilamentModel(scene.replace(dimension="planar"), integrator=self.integrator,
+                                 steps_per_period=self.flow_steps_min)
 
         return Symmetries(
             continuous=[ContinuousSymmetry("rotation_e3", _rz_generator(n1), 2 * np.pi)],
