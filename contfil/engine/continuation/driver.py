@@ -280,8 +280,11 @@ class Continuation:
             return None, None, info, "non-finite", f"tangent ({exc})"
         except (ConvergenceError, np.linalg.LinAlgError) as exc:
             return None, None, info, "tangent", f"tangent ({exc})"
-        if (s.adapt and self.pa.ip(ctx.tangent, tau0) < np.cos(s.max_angle)
-                and ds > s.ds_min * DS_MIN_SLACK):
+        # The two angle guards hold at ds_min too: a step that still turns
+        # too far there has left the arc (a knot of folds, another branch),
+        # and accepting it would join two branches; the run stops with a
+        # StepFailure instead (docs/decisions.md 27).
+        if s.adapt and self.pa.ip(ctx.tangent, tau0) < np.cos(s.max_angle):
             return None, None, info, "tangent_turn", "tangent turned too far"
         # The corrector moves in the hyperplane W-orthogonal to tau0, so the
         # secant X - X0 is ds*tau0 plus a sideways part. On a smooth arc the
@@ -291,8 +294,7 @@ class Continuation:
         # back onto its parent near its end), even where the two branches'
         # tangents are nearly parallel and the tangent test passes.
         side = X - X0 - ds * tau0
-        if (s.adapt and np.sqrt(self.pa.ip(side, side)) > np.tan(s.max_angle) * ds
-                and ds > s.ds_min * DS_MIN_SLACK):
+        if s.adapt and np.sqrt(self.pa.ip(side, side)) > np.tan(s.max_angle) * ds:
             return None, None, info, "secant_turn", "corrector landed off the step's direction"
         # An event may know that the corrected point is not on this branch
         # (e.g. a symmetry-broken branch's point landed in the parent's
