@@ -40,6 +40,11 @@ class FlowOps:
     accurate to its nonlinear-solver tolerance); ``fd_central`` switches to
     central differences (two flows per product, O(ε²) truncation error; pair
     it with a larger ``fd_rel``, e.g. 1e-5).
+
+    ``flow_steps`` fixes the step count of a model's own fixed-step flow:
+    passed as ``steps=`` to its ``flow`` *and* its ``flow_tangent`` (the
+    tangent stays exact; multiple shooting places its segments on step
+    boundaries this way). For the default flow it is the Radau step count.
     """
 
     def __init__(
@@ -50,8 +55,10 @@ class FlowOps:
         param_index: int | None = None,
         flow_kwargs: dict[str, Any] | None = None,
         fd_central: bool = False,
+        flow_steps: int | None = None,
     ) -> None:
         self.model = model
+        self.flow_steps = None if flow_steps is None else int(flow_steps)
         self.fd_central = bool(fd_central)
         self.param_index = param_index
         self.fd_rel = float(fd_rel)
@@ -70,13 +77,21 @@ class FlowOps:
         self._sweep: tuple[tuple[bytes, bytes, float], FlowTangent] | None = None
         if callable(own):
             kw = dict(flow_kwargs or {})
+            if self.flow_steps is not None:
+                kw["steps"] = self.flow_steps
             self._flow = (lambda u, p, T: own(u, p, T, **kw)) if kw else own
             self._flow_jvp = getattr(model, "flow_jvp", None)
             # probed once: the engine never looks for hooks in its loops
-            self._tangent = None if kw else flow_tangent_hook(model)
+            hook = flow_tangent_hook(model)
+            if self.flow_steps is not None and hook is not None and set(kw) == {"steps"}:
+                n = self.flow_steps
+                self._tangent = (lambda u, p, T, V, k, s: hook(u, p, T, V, k, s, steps=n))
+            else:
+                self._tangent = None if kw else hook
         else:
             jac = getattr(model, "jacobian", None)
-            self.radau = RadauFlow(model.rhs, jac if callable(jac) else None, steps=steps)
+            self.radau = RadauFlow(model.rhs, jac if callable(jac) else None,
+                                   steps=steps if self.flow_steps is None else self.flow_steps)
             self.radau.param_index = param_index
             self._flow = self.radau.flow_and_tangents
             self._flow_jvp = None

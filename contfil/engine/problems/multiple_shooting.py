@@ -4,45 +4,54 @@ Single shooting solves ``φ_T(u) = u``; when the orbit has a multiplier of
 size ``e^{λT}`` = 1e6 or more, a perturbation of the guess is amplified by
 that factor over one period (the flow can even blow up before ``T``), and the
 Jacobian ``Dφ_T - I`` carries the same huge entries. Multiple shooting cuts
-the period into ``m`` segments of length ``τ = T/m`` with one state per
-segment start, ``x = (u_0, ..., u_{m-1}, T[, θ])``, and solves
+the period into ``m`` segments with one state per segment start, ``x = (u_0,
+..., u_{m-1}, T[, θ])``, and solves
 
-    φ_τ(u_i) - u_{i+1} = 0      (i = 0 .. m-2)
-    G φ_τ(u_{m-1}) - u_0 = 0    (G = exp(θL) for a relative periodic orbit)
+    φ_{τ_i}(u_i) - u_{i+1} = 0      (i = 0 .. m-2)
+    G φ_{τ_{m-1}}(u_{m-1}) - u_0 = 0    (G = exp(θL) for a relative periodic orbit)
     <f̂_ref, u_0 - u_ref> = 0   [, <L̂u_ref, u_0 - u_ref> = 0]
 
-so each flow is amplified by at most ``e^{λT/m}``. The Jacobian is the
-cyclic block-bordered matrix with the segment monodromies
-``M_i = Dφ_τ(u_i)`` on the block diagonal, ``-I`` on the block
-super-diagonal (and in the corner), the ``T`` column
-``∂_τφ(u_i)/m`` and the drift column ``L G φ_τ(u_{m-1})``. It is assembled
-densely for small systems (``m d`` tangent flows of length ``τ``: the cost of
-one single-shooting monodromy) or applied matrix-free.
+so each flow is amplified by at most ``~e^{λT/m}``.
 
-Floquet multipliers are the eigenvalues of the product
-``P = G M_{m-1} ... M_0`` but the product is never formed (its entries reach
-the largest multiplier and the small ones drown in its round-off). Small
-systems use the *cyclic* matrix ``C`` with ``M_0, ..., M_{m-2}`` on the block
-sub-diagonal and ``G M_{m-1}`` in the corner: ``C^m`` is block diagonal with
-cyclic products of the blocks, so the eigenvalues of ``C`` are the ``m``-th
-roots ``λ ω^k`` (``ω = e^{2πi/m}``) of the multipliers ``μ = λ^m``, computed
-by a backward-stable eigensolver on blocks of norm ``~ e^{λT/m}``; the block
-``w_0`` of an eigenvector of ``C`` is the Floquet vector at ``u_0``. Large
-systems use the matrix-free Arnoldi of :mod:`contfil.engine.linalg.floquet`
-on ``v -> G M_{m-1}(... M_0 v)`` (leading multipliers). Trivial multipliers
-are flagged by their eigenvectors (``f(u_0)``, ``L u_0``), never by their
-distance to 1.
+**Segments at step boundaries.** The flow is a fixed-step map (the engine's
+Radau IIA for a plain model, a model's own stepper that takes ``steps=``,
+such as the filament's). Its ``N`` steps per period (the problem's ``steps``,
+a ``flow_kwargs["steps"]``, or the model's ``flow_steps(T)``) are split
+evenly, ``n_i = N // m`` or one more, and segment ``i`` is the flow over
+``τ_i = T n_i / N`` in ``n_i`` steps: every segment has the step size of the
+single-shooting flow. ``m = 1`` *is* single shooting (the same steps, the
+same discrete map). For a one-step method (Radau IIA) the segments compose
+to exactly the single-shooting map for every ``m``; a multistep method that
+restarts at each flow call (BDF2 starts with a backward-Euler step) changes
+the discrete map with ``m`` by its start-up error (docs/decisions.md,
+section 24). A model flow with no step count falls back to ``τ_i = T/m``.
 
-Same :class:`~contfil.engine.problems.base.Problem` interface as
-:class:`~contfil.engine.problems.shooting.PeriodicOrbitProblem` (the
-continuation, the events and the explorer need not know): ``state(x)`` is
-``u_0``, ``extra`` holds ``period`` (and ``drift``), the phase reference
-round-trips through ``restart_data``/``restore``.
+**Derivatives.** Each segment has its own :class:`FlowOps` (its own cached
+exact tangent sweep): the Jacobian is the cyclic block-bordered matrix with
+the segment monodromies ``M_i = Dφ_{τ_i}(u_i)`` on the block diagonal, ``-I``
+on the block super-diagonal (and in the corner), the ``T`` column
+``∂_τφ(u_i) n_i/N`` and the drift column ``L G φ(u_{m-1})``; ``m`` sweeps of
+``n_i`` steps cost one single-shooting sweep. Newton is exact at every
+iteration (no Broyden updates: the corrector's quadratic convergence is the
+point of the method).
+
+**Floquet multipliers** come from the segment Jacobians of the full model by
+:func:`~contfil.engine.linalg.periodic_floquet.periodic_floquet` (the cyclic
+block eigenproblem; the product ``G M_{m-1} ... M_0`` is never formed, so
+small multipliers keep their relative accuracy beside ``|μ| = 1e9``). A
+subspace solve (planar beating) takes the in-plane blocks from the reduced
+model's segment sweeps and the out-of-plane blocks from the full model's
+segment sweeps in the normal directions only, as single shooting does.
+Without exact tangents, large systems use Arnoldi on the segment-by-segment
+product.
+
+:meth:`MultipleShootingProblem.refine` returns the same problem at ``k``
+times the steps of every segment (the boundaries stay at the same times, so
+:meth:`~MultipleShootingProblem.onto_refined` keeps the unknowns as they are).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -50,7 +59,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from contfil.engine.flows.ops import FlowOps
-from contfil.engine.linalg.floquet import flag_trivial, floquet_multipliers
+from contfil.engine.linalg.floquet import floquet_multipliers
+from contfil.engine.linalg.periodic_floquet import cyclic_eigs, periodic_floquet
 from contfil.engine.problems.base import Stability
 from contfil.engine.problems.shooting import (
     PeriodicOrbitProblem,
@@ -66,61 +76,21 @@ __all__ = [
     "MultipleShootingProblem",
     "RelativeMultipleShootingProblem",
     "cyclic_product_eigs",
+    "split_steps",
 ]
 
+#: the former name of :func:`~contfil.engine.linalg.periodic_floquet.cyclic_eigs`
+cyclic_product_eigs = cyclic_eigs
 
-def cyclic_product_eigs(
-    blocks: Sequence[Array],
-) -> tuple[NDArray[np.complex128], NDArray[np.complex128], float]:
-    """Eigenvalues and eigenvectors of ``P = B_{m-1} ... B_1 B_0`` without forming ``P``.
 
-    The cyclic matrix ``C`` (``B_i`` maps block ``i`` to block ``i+1``, the
-    last maps back to block 0) has the eigenvalues ``λ`` with ``λ^m`` an
-    eigenvalue of ``P``, each ``m`` times (``λ ω^k``). They are grouped into
-    such families (greedy nearest match), ``μ = λ^m`` of the member nearest
-    the positive real axis, and its eigenvector's block 0 (the eigenvector of
-    ``P``). Returns ``(mu, vectors, residual)`` sorted by decreasing modulus;
-    ``residual`` is the largest ``|C w - λ w| / |w|``.
-    """
-    m = len(blocks)
-    d = blocks[0].shape[0]
-    if m == 1:
-        vals, vecs = np.linalg.eig(blocks[0])
-        res = float(np.max(np.linalg.norm(blocks[0] @ vecs - vecs * vals, axis=0))) if d else 0.0
-        order = np.lexsort((-vals.imag, -np.abs(vals)))
-        return vals[order].astype(complex), vecs[:, order].astype(complex), res
-    C = np.zeros((m * d, m * d))
-    for i, B in enumerate(blocks):
-        j = (i + 1) % m
-        C[j * d:(j + 1) * d, i * d:(i + 1) * d] = B
-    lam, W = np.linalg.eig(C)
-    res = float(np.max(np.linalg.norm(C @ W - W * lam, axis=0) / np.linalg.norm(W, axis=0)))
-    omega = np.exp(2j * np.pi * np.arange(1, m) / m)
-    free = np.ones(lam.size, dtype=bool)
-    mus: list[complex] = []
-    vecs: list[NDArray[np.complex128]] = []
-    for k in np.argsort(-np.abs(lam)):
-        if not free[k]:
-            continue
-        family = [int(k)]
-        free[k] = False
-        for w in omega:
-            # the sibling λ ω^j nearest among the unassigned eigenvalues
-            cand = np.flatnonzero(free)
-            if cand.size == 0:
-                break
-            s = int(cand[np.argmin(np.abs(lam[cand] - lam[k] * w))])
-            free[s] = False
-            family.append(s)
-        rep = min(family, key=lambda i: abs(np.angle(lam[i])))
-        mus.append(complex(lam[rep] ** m))
-        v = W[:d, rep].astype(complex)
-        nv = float(np.linalg.norm(v))
-        vecs.append(v / nv if nv > 0 else v)
-    mu = np.array(mus, dtype=complex)
-    V = np.column_stack(vecs) if vecs else np.zeros((d, 0), complex)
-    order = np.lexsort((-mu.imag, -np.round(np.abs(mu), 12)))
-    return mu[order], V[:, order], res
+def split_steps(total: int, m: int) -> list[int]:
+    """``total`` steps split evenly into ``m`` segments (the first ``total % m``
+    take one more)."""
+    total, m = int(total), int(m)
+    if total < m:
+        raise SpecError(f"multiple shooting: {m} segments need at least {m} steps, got {total}")
+    q, r = divmod(total, m)
+    return [q + 1 if i < r else q for i in range(m)]
 
 
 class MultipleShootingProblem(PeriodicOrbitProblem):
@@ -135,13 +105,14 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         Choose it so that the largest multiplier per segment, ``|μ|^{1/m}``,
         stays modest (≲ 10-100).
     steps:
-        Steps per *period* of the default flow; each segment takes
-        ``ceil(steps/m)``. A model's own flow keeps its ``flow_kwargs``
-        per segment, except an integer ``"steps"`` entry, which is divided by
-        ``m`` the same way.
+        Steps per *period* of the default (Radau) flow, split over the
+        segments; a model's own flow uses ``flow_kwargs["steps"]`` or its
+        ``flow_steps(T)``.
     dense_threshold:
-        Dense Jacobian and cyclic-matrix Floquet when ``n = m d + 1`` is at
-        most this (default 600); matrix-free otherwise.
+        Dense Jacobian when ``n = m d + 1`` is at most this (default 600) or
+        the model has exact tangent sweeps; matrix-free otherwise.
+    refine_factor:
+        Multiplies every segment's step count (see :meth:`refine`).
     **kwargs:
         The other keywords of ``PeriodicOrbitProblem`` (``subspace``,
         ``u_ref``, ``nev``, ``floquet_tol``, ``period_means``, ``fd_rel``, ...).
@@ -156,33 +127,95 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         segments: int = 4,
         steps: int = 100,
         dense_threshold: int = 600,
+        refine_factor: int = 1,
         **kwargs: Any,
     ) -> None:
         m = int(segments)
-        if m < 1:
-            raise SpecError(f"{type(self).__name__}: segments must be >= 1, got {segments!r}")
+        if m < 1 or m != segments:
+            raise SpecError(f"{type(self).__name__}: segments must be an integer >= 1, "
+                            f"got {segments!r}")
+        if int(refine_factor) < 1:
+            raise SpecError(f"refine_factor must be >= 1, got {refine_factor!r}")
         self.segments = m
+        self.refine_factor = int(refine_factor)
+        self._init_args = (model, param, None if params is None else np.array(params, float))
+        self._init_kw = {"steps": steps, "dense_threshold": dense_threshold, **kwargs}
         super().__init__(model, param, params, steps=steps, dense_threshold=dense_threshold,
                          **kwargs)
-        self.seg_steps = max(1, math.ceil(self.steps / m))
+        # exact Newton at every iteration (no Broyden updates of the flow rows)
+        self.broyden = False
+        self.ops.samples = 0
         fk = dict(self._flow_kw.get("flow_kwargs") or {})
-        if isinstance(fk.get("steps"), int):
-            fk["steps"] = max(1, math.ceil(fk["steps"] / m))
-        self._seg_kw = {**self._flow_kw, "flow_kwargs": fk or None}
-        self.ops = FlowOps(self.solve_model, steps=self.seg_steps, param_index=self.ip,
-                           **self._seg_kw)
-        self._full_ops = None if self.subspace is not None else self.ops
+        self._fixed_steps: int | None = None
+        if isinstance(fk.get("steps"), int | np.integer):
+            self._fixed_steps = int(fk.pop("steps"))
+        self._seg_kw = {"flow_kwargs": fk or None, "fd_rel": self._flow_kw["fd_rel"],
+                        "fd_central": self._flow_kw["fd_central"]}
+        self._seg_ops: dict[tuple[bool, int], FlowOps] = {}
         self.n = m * self.dim + self.n_extra
-        self.dense = self.n <= dense_threshold
+        self.dense = self.n <= dense_threshold or self.ops.has_sweep
+
+    # --- segments ------------------------------------------------------------
+    def _has_own_flow(self, model: Any) -> bool:
+        return callable(getattr(model, "flow", None))
+
+    def step_counts(self, T: float) -> list[int] | None:
+        """Steps of each segment at period ``T`` (None: a model flow with no
+        step count, segments of equal time ``T/m``)."""
+        mod = self.solve_model
+        if not self._has_own_flow(mod):
+            base = self.steps
+        elif self._fixed_steps is not None:
+            base = self._fixed_steps
+        elif callable(getattr(mod, "flow_steps", None)):
+            base = int(mod.flow_steps(T))
+        else:
+            return None
+        return [self.refine_factor * n for n in split_steps(base, self.segments)]
+
+    def segment_times(self, T: float) -> tuple[list[int] | None, Array]:
+        """``(steps, tau)``: the step counts and durations of the segments."""
+        counts = self.step_counts(T)
+        if counts is None:
+            return None, np.full(self.segments, T / self.segments)
+        total = float(sum(counts))
+        return counts, np.array([T * n / total for n in counts])
+
+    def segment_ops(self, i: int, steps: int | None, full: bool = False) -> FlowOps:
+        """The :class:`FlowOps` of segment ``i`` (solve model, or the full model
+        for the stability of a subspace solve), with its own cached sweep."""
+        full = bool(full and self.subspace is not None)
+        key = (full, i)
+        ops = self._seg_ops.get(key)
+        if ops is None or ops.flow_steps != steps:
+            model = self.model if full else self.solve_model
+            ops = FlowOps(model, steps=self.steps if steps is None else steps,
+                          param_index=self.ip, flow_steps=steps, **self._seg_kw)
+            ops.samples = 0
+            self._seg_ops[key] = ops
+        return ops
+
+    def _segments(self, T: float, full: bool = False) -> list[tuple[FlowOps, float, float]]:
+        """Per segment ``(ops, tau_i, dtau_i/dT)``."""
+        counts, tau = self.segment_times(T)
+        out = []
+        for i in range(self.segments):
+            n = None if counts is None else counts[i]
+            out.append((self.segment_ops(i, n, full), float(tau[i]), float(tau[i] / T)))
+        return out
+
+    @property
+    def flow_evals(self) -> int:
+        """Flow evaluations so far (all segments, both models)."""
+        return self.ops.flow_evals + sum(o.flow_evals for o in self._seg_ops.values()) + (
+            self._full_ops.flow_evals if self._full_ops not in (None, self.ops) else 0)
+
+    @property
+    def tangent_sweeps(self) -> int:
+        """Exact tangent sweeps so far (all segments, both models)."""
+        return self.ops.tangent_sweeps + sum(o.tangent_sweeps for o in self._seg_ops.values())
 
     # --- bookkeeping ---------------------------------------------------------
-    @property
-    def full_ops(self) -> FlowOps:
-        """Segment flow of the full model (stability of a subspace solve)."""
-        if self._full_ops is None:
-            self._full_ops = FlowOps(self.model, steps=self.seg_steps, **self._seg_kw)
-        return self._full_ops
-
     def split(self, x: Array) -> tuple[Array, float]:
         """``(u_0, T)``."""
         return x[: self.dim], float(x[self.segments * self.dim])
@@ -199,17 +232,51 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
 
     def initial_guess(self, u0: Array, T: float, p: float, theta: float | None = None) -> Array:
         """``x`` from one state on (or near) the orbit: the segment starts are
-        ``u_{i+1} = φ_τ(u_i)``. Integrating a strongly unstable orbit over a
+        ``u_{i+1} = φ_{τ_i}(u_i)``. Integrating a strongly unstable orbit over a
         whole period may fail: then pass states sampled along it yourself
         (``np.concatenate([U.ravel(), [T]])``)."""
         _check_period(float(T))
         q = self.params_at(p)
-        tau = float(T) / self.segments
         U = [np.asarray(u0, dtype=float)]
-        for _ in range(self.segments - 1):
-            U.append(self.ops.flow(U[-1], q, tau))
+        for ops, tau, _ in self._segments(float(T))[:-1]:
+            U.append(ops.flow(U[-1], q, tau))
         tail = [float(T)] if self.n_extra == 1 else [float(T), float(theta or 0.0)]
         return np.concatenate([np.concatenate(U), tail])
+
+    def from_single(self, x: Array, p: float) -> Array:
+        """``x`` of this problem from single-shooting unknowns ``(u, T[, θ])``."""
+        d = self.dim
+        th = float(x[d + 1]) if self.n_extra > 1 else None
+        return self.initial_guess(np.asarray(x[:d], float), float(x[d]), p, theta=th)
+
+    # --- refinement (error estimates) ----------------------------------------
+    def refine(self, factor: int = 2) -> MultipleShootingProblem | None:
+        """The same problem with ``factor`` times the steps in every segment
+        (boundaries at the same times), the phase reference copied; None when
+        the flow has no step count to refine."""
+        if int(factor) < 1:
+            raise ValueError(f"refine: factor must be >= 1, got {factor!r}")
+        if self._has_own_flow(self.solve_model) and self._fixed_steps is None \
+                and not callable(getattr(self.solve_model, "flow_steps", None)):
+            return None
+        model, param, params = self._init_args
+        kw = dict(self._init_kw)
+        if isinstance(self, RelativeMultipleShootingProblem):
+            kw["symmetry_index"] = self.symmetry_index
+        fine = type(self)(model, param, self.base_params.copy() if params is None else params,
+                          segments=self.segments,
+                          refine_factor=self.refine_factor * int(factor), **kw)
+        if self.u_ref is not None:
+            fine.restore(self.restart_data())
+        fine.period_scale = self.period_scale
+        return fine
+
+    def onto_refined(self, x: Array, fine: MultipleShootingProblem) -> Array:
+        """The unknowns for ``fine`` (from :meth:`refine`): the segment starts
+        sit at the same times, so they carry over unchanged."""
+        if getattr(fine, "segments", None) != self.segments or fine.n != self.n:
+            raise ValueError("onto_refined: not a refinement of this problem")
+        return np.array(x, dtype=float, copy=True)
 
     # --- Problem interface ---------------------------------------------------
     def _drift_op(self, th: float) -> Array | None:
@@ -219,14 +286,12 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         self._ensure_ref(x, p)
         U = self.segment_states(x)
         T, th = self._tail(x)
-        _check_period(T)
+        self._check_period(T)
         q = self.params_at(p)
-        tau = T / self.segments
-        m = self.segments
+        m, d = self.segments, self.dim
         r = np.empty(self.n)
-        d = self.dim
-        for i in range(m):
-            phi = self.ops.flow(U[i], q, tau)
+        for i, (ops, tau, _) in enumerate(self._segments(T)):
+            phi = ops.flow(U[i], q, tau)
             if i == m - 1:
                 G = self._drift_op(th)
                 phi = phi if G is None else G @ phi
@@ -247,25 +312,21 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         _check_period(T)
         q = self.params_at(p)
         m, d = self.segments, self.dim
-        tau = T / m
         V = np.asarray(v[: m * d], dtype=float).reshape(m, d)
         vT = float(v[m * d])
         out = np.empty(self.n)
-        for i in range(m):
-            w = self.ops.jvp(U[i], q, tau, V[i], vT / m)
+        for i, (ops, tau, dtau) in enumerate(self._segments(T)):
+            w = ops.jvp(U[i], q, tau, V[i], vT * dtau)
             if i == m - 1:
                 G = self._drift_op(th)
                 if G is not None:
                     w = G @ w
                     vth = float(v[m * d + 1])
                     if vth != 0.0:
-                        w = w + vth * (self.L @ (G @ self.ops.flow(U[i], q, tau)))
+                        w = w + vth * (self.L @ (G @ ops.flow(U[i], q, tau)))
             out[i * d:(i + 1) * d] = w - V[(i + 1) % m]
         out[m * d:] = self._phase(self.u_ref + V[0])
         return out
-
-    def _blocks(self, ops: FlowOps, U: Array, q: Array, tau: float) -> list[Array]:
-        return [ops.monodromy(U[i], q, tau) for i in range(U.shape[0])]
 
     def jacobian(self, x: Array, p: float) -> Array:
         self._ensure_ref(x, p)
@@ -274,16 +335,16 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         _check_period(T)
         q = self.params_at(p)
         m, d = self.segments, self.dim
-        tau = T / m
         G = self._drift_op(th)
         J = np.zeros((self.n, self.n))
         eye = np.eye(d)
-        for i, M in enumerate(self._blocks(self.ops, U, q, tau)):
+        for i, (ops, tau, dtau) in enumerate(self._segments(T)):
             rows = slice(i * d, (i + 1) * d)
-            dT = self.ops.dflow_dT(U[i], q, tau) / m
+            M = ops.monodromy(U[i], q, tau)
+            dT = ops.dflow_dT(U[i], q, tau) * dtau
             if i == m - 1 and G is not None:
                 M, dT = G @ M, G @ dT
-                J[rows, m * d + 1] = self.L @ (G @ self.ops.flow(U[i], q, tau))
+                J[rows, m * d + 1] = self.L @ (G @ ops.flow(U[i], q, tau))
             J[rows, i * d:(i + 1) * d] = M
             j = (i + 1) % m
             J[rows, j * d:(j + 1) * d] -= eye
@@ -291,6 +352,7 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         J[m * d, :d] = self.f_ref
         if self.n_extra > 1:
             J[m * d + 1, :d] = self.l_ref
+        self._effort += 1.0
         return J
 
     def dp(self, x: Array, p: float) -> Array:
@@ -299,11 +361,25 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         q = self.params_at(p)
         m, d = self.segments, self.dim
         out = np.zeros(self.n)
-        for i in range(m):
-            w = self.ops.dflow_dp(U[i], q, T / m)
+        for i, (ops, tau, _) in enumerate(self._segments(T)):
+            w = ops.dflow_dp(U[i], q, tau)
             G = self._drift_op(th) if i == m - 1 else None
             out[i * d:(i + 1) * d] = w if G is None else G @ w
         return out
+
+    def phase_orientation(self, jacobian: Array) -> float:
+        """``sign det(R C)`` as for single shooting, with ``C`` the last
+        segment's rows of the extra columns (``∂_T φ`` and ``L G φ`` there point
+        along ``f(u_0)`` and ``L u_0``, as the eliminated single-shooting
+        columns do, times positive factors). ``m = 1`` is single shooting's."""
+        d, m = self.dim, self.segments
+        J = np.asarray(jacobian)
+        if J.shape != (self.n, self.n):
+            return 1.0
+        R = J[m * d:, :d]
+        C = J[(m - 1) * d: m * d, m * d:]
+        s = float(np.sign(np.linalg.det(R @ C)))
+        return s if s != 0.0 else 1.0
 
     def extra(self, x: Array) -> dict[str, float]:
         T, th = self._tail(x)
@@ -313,19 +389,26 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         return self._drift_op(self._tail(x)[1])
 
     def orbit_means(self, x: Array, p: float, k: int) -> dict[str, float]:
-        """Period means over ``k`` samples per segment (the segment starts are
-        on the orbit, so no flow crosses a whole period)."""
+        """Period means over ``k`` equally spaced samples, each flowed from the
+        segment start before it (no flow crosses a whole period), at the
+        segments' step size."""
         U = self.segment_states(x)
         T, _ = self._tail(x)
         q = self.params_at(p)
-        tau = T / (self.segments * k)
+        counts, tau = self.segment_times(T)
+        starts = np.concatenate([[0.0], np.cumsum(tau)])
+        total = None if counts is None else sum(counts)
         samples = []
-        for i in range(self.segments):
+        for j in range(k):
+            t = j * T / k
+            i = min(int(np.searchsorted(starts, t, side="right")) - 1, self.segments - 1)
+            dt = t - starts[i]
             u = U[i]
-            for _ in range(k):
-                full = np.asarray(self.subspace.embed(u), dtype=float) if self.subspace else u
-                samples.append(self.model.observables(full, q))
-                u = self.ops.flow(u, q, tau)
+            if dt > 1e-14 * T:
+                n = None if total is None else max(1, round(total * dt / T))
+                u = self.segment_ops(-1 - j, n).flow(u, q, dt)
+            full = np.asarray(self.subspace.embed(u), dtype=float) if self.subspace else u
+            samples.append(self.model.observables(full, q))
         out: dict[str, float] = {}
         for name, v0 in samples[0].items():
             if np.isscalar(v0) and np.isreal(v0):
@@ -333,45 +416,73 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         return out
 
     # --- stability -----------------------------------------------------------
+    def _exact_blocks(self, ops: FlowOps) -> bool:
+        return ops.radau is not None or ops.has_sweep
+
     def stability(self, x: Array, p: float, vectors: bool = True) -> Stability:
-        """Floquet multipliers of the full model: eigenvalues of the cyclic
-        block matrix (small systems) or Arnoldi on the segment-by-segment
-        product (large ones); the product matrix is never formed."""
+        """Floquet multipliers of the full model from the segment Jacobians
+        (:func:`~contfil.engine.linalg.periodic_floquet.periodic_floquet`, the
+        product never formed) for a dense problem (small, or exact tangent
+        sweeps); Arnoldi on the segment-by-segment product otherwise."""
         U = self.segment_states(x)
-        if self.subspace is not None:
-            U = np.array([np.asarray(self.subspace.embed(u), dtype=float) for u in U])
         T, th = self._tail(x)
         q = self.params_at(p)
-        tau = T / self.segments
-        ops = self.full_ops
         G = self._drift_op(th)
-        before = ops.flow_evals + ops.tangent_evals
-        dirs = self.trivial_directions(x, p)
-        n_full = U.shape[1]
+        before_f, before_s = self.flow_evals, self.tangent_sweeps
+        Uf = U if self.subspace is None else np.array(
+            [np.asarray(self.subspace.embed(u), dtype=float) for u in U])
+        segs = self._segments(T)
+        fsegs = self._segments(T, full=True)
+        n_full = Uf.shape[1]
+        exact = self._exact_blocks(segs[0][0]) and self._exact_blocks(fsegs[0][0])
         if self.dense:
-            blocks = self._blocks(ops, U, q, tau)
+            dirs = [self._directions(Uf[i], q) for i in range(self.segments)]
+            Ms = [ops.monodromy(U[i], q, tau) for i, (ops, tau, _) in enumerate(segs)]
             if G is not None:
-                blocks[-1] = G @ blocks[-1]
-            vals, V, res = cyclic_product_eigs(blocks)
-            trivial, tinfo = flag_trivial(vals, V, dirs)
-            with np.errstate(divide="ignore"):
-                expo = np.log(vals) / T
-            st = Stability(values=vals, kind="multipliers", trivial=trivial, vectors=V,
-                           residual=res, info={"method": "cyclic", "trivial_info": tinfo,
-                                               "exponents": expo})
+                Ms[-1] = G @ Ms[-1]
+            if self.subspace is None:
+                st = periodic_floquet([(Ms, np.eye(self.dim))], dirs, nev=self.nev, period=T)
+                coupling = 0.0
+            else:
+                E = np.column_stack([np.asarray(self.subspace.embed(e), dtype=float)
+                                     for e in np.eye(self.dim)])
+                Qe = np.linalg.qr(E)[0]
+                C = np.linalg.svd(np.eye(n_full) - Qe @ Qe.T)[0][:, : n_full - self.dim]
+                Moo, coupling = [], 0.0
+                for i, (ops, tau, _) in enumerate(fsegs):
+                    if ops.has_sweep:
+                        MC = ops.tangent_block(Uf[i], q, tau, C)
+                    else:
+                        MC = ops.monodromy(Uf[i], q, tau) @ C
+                    B = C.T @ MC
+                    coupling = max(coupling, float(np.linalg.norm(MC - C @ B)
+                                                   / max(np.linalg.norm(MC), 1e-300)))
+                    Moo.append(B)
+                st = periodic_floquet([(Ms, E), (Moo, C)], dirs, nev=self.nev, period=T,
+                                      labels=("in", "out"))
+            st.info["block_coupling"] = coupling
         else:
+            fops = [(ops, tau) for ops, tau, _ in fsegs]
+
             def apply(v: Array) -> Array:
-                for i in range(self.segments):
-                    v = ops.jvp(U[i], q, tau, v)
+                for i, (ops, tau) in enumerate(fops):
+                    v = ops.jvp(Uf[i], q, tau, v)
                 return v if G is None else G @ v
 
-            st = floquet_multipliers(apply, n_full, dirs, nev=self.nev, tol=self.floquet_tol,
-                                     kmax=self.floquet_kmax, period=T)
+            st = floquet_multipliers(apply, n_full, self._directions(Uf[0], q), nev=self.nev,
+                                     tol=self.floquet_tol, kmax=self.floquet_kmax, period=T)
             st.info["method"] = "arnoldi"
-        st.info["flow_evals"] = ops.flow_evals + ops.tangent_evals - before
-        st.info["exact_tangent"] = ops.exact_tangent
+        st.info["flow_evals"] = self.flow_evals - before_f
+        st.info["tangent_sweeps"] = self.tangent_sweeps - before_s
+        st.info["exact_tangent"] = bool(exact)
         st.info["segments"] = self.segments
         return st
+
+    def _directions(self, Uf: Array, q: Array) -> list[Array]:
+        """``f(U)`` and ``L_j U`` of the full model at a full state."""
+        dirs = [np.asarray(self.model.rhs(Uf, q), dtype=float)]
+        dirs += [s.tangent(Uf) for s in self.model.symmetries.continuous]
+        return dirs
 
 
 class RelativeMultipleShootingProblem(MultipleShootingProblem, RelativePeriodicOrbitProblem):
@@ -379,6 +490,12 @@ class RelativeMultipleShootingProblem(MultipleShootingProblem, RelativePeriodicO
     ``x = (u_0, ..., u_{m-1}, T, θ)``; the drift is applied on the last
     segment (``φ`` commutes with ``exp(θL)``). Keywords as for
     :class:`MultipleShootingProblem` plus ``symmetry_index``."""
+
+    def __init__(self, model: Model, param: str, params: Sequence[float] | Array | None = None,
+                 *, symmetry_index: int = 0, **kwargs: Any) -> None:
+        self.symmetry_index = int(symmetry_index)
+        super().__init__(model, param, params, symmetry_index=symmetry_index, **kwargs)
+        self._init_kw.pop("symmetry_index", None)
 
     def _drift_op(self, th: float) -> Array | None:
         return self.G(th)
