@@ -64,6 +64,10 @@ from contfil.engine.events.standard import normalise_phase
 from contfil.engine.linalg.hookstep import newton_hookstep
 from contfil.engine.problems.base import Problem
 from contfil.engine.problems.collocation import CollocationProblem
+from contfil.engine.problems.multiple_shooting import (
+    MultipleShootingProblem,
+    RelativeMultipleShootingProblem,
+)
 from contfil.engine.problems.rotating_wave import RotatingWaveProblem
 from contfil.engine.problems.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
 from contfil.engine.switching.equilibria import branch_point_tangents, hopf_data, o2_hopf_modes
@@ -500,6 +504,9 @@ def x_from_point(problem: Problem, sp: SpecialPoint) -> Array:
         tail = [pt.extra["period"]]
         if isinstance(problem, RelativePeriodicOrbitProblem):
             tail.append(pt.extra.get("drift", 0.0))
+        if isinstance(problem, MultipleShootingProblem):
+            # the other segment starts flowed from the phase origin
+            return problem.from_single(np.concatenate([u, tail]), float(pt.p))
         return np.concatenate([u, tail])
     if isinstance(problem, RotatingWaveProblem):
         return np.concatenate([u, [pt.extra["omega"]]])
@@ -627,6 +634,37 @@ def _off_trivial(problem: PeriodicOrbitProblem, x: Array, p: float, v: Array) ->
     return _unit_real(w)
 
 
+def _cycle_problem_like(parent: PeriodicOrbitProblem, relative: bool, base: Array,
+                        **kw: Any) -> PeriodicOrbitProblem:
+    """A new shooting problem for a branch switched from ``parent``: multiple
+    shooting with the parent's segments (and refinement) when the parent
+    shoots with several, single shooting otherwise."""
+    model, param = parent.model, parent.param
+    if isinstance(parent, MultipleShootingProblem):
+        kw.update(segments=parent.segments, refine_factor=parent.refine_factor)
+        if relative:
+            return RelativeMultipleShootingProblem(model, param, base, **kw)
+        return MultipleShootingProblem(model, param, base, **kw)
+    if relative:
+        return RelativePeriodicOrbitProblem(model, param, base, **kw)
+    return PeriodicOrbitProblem(model, param, base, **kw)
+
+
+def _shooting_seed(new: PeriodicOrbitProblem, x_single: Array, v: Array, eps: float,
+                   p: float) -> tuple[Array, Array]:
+    """``(x*, dx)`` of ``new`` from single-shooting unknowns ``x_single`` and a
+    state perturbation ``v``: for multiple shooting the segment starts are
+    flowed from the phase origin, with and without ``ε v`` (the perturbation
+    is carried along the orbit), ``dx`` the difference over ``ε`` (unit)."""
+    dx = np.concatenate([v, np.zeros(x_single.size - v.size)])
+    if not isinstance(new, MultipleShootingProblem):
+        return x_single, np.concatenate([dx, np.zeros(new.n - dx.size)])
+    x_star = new.from_single(x_single, p)
+    x_pert = new.from_single(x_single + eps * dx, p)
+    d = x_pert - x_star
+    return x_star, d / np.linalg.norm(d)
+
+
 def cycles_leaving_subspace(
     problem: PeriodicOrbitProblem,
     sp: SpecialPoint,
@@ -658,7 +696,7 @@ def cycles_leaving_subspace(
     x_r = x_from_point(problem, sp)
     p_bp = float(sp.point.p)
     U = np.asarray(problem.subspace.embed(x_r[: problem.dim]), dtype=float)
-    T = float(x_r[problem.dim])
+    T = problem.split(x_r)[1]
     v = np.asarray(sp.data["v_re"], dtype=float)
     if v.size != U.size:
         raise ContfilError(f"critical eigenvector has {v.size} entries, the full state {U.size}")
@@ -670,13 +708,13 @@ def cycles_leaving_subspace(
                           "period_means": problem.period_means, **problem._flow_kw}
     new: PeriodicOrbitProblem
     if model.symmetries.continuous:
-        new = RelativePeriodicOrbitProblem(model, problem.param, problem.base_params,
-                                           symmetry_index=symmetry_index, **kw)
+        new = _cycle_problem_like(problem, True, problem.base_params,
+                                  symmetry_index=symmetry_index, **kw)
         x_star = np.concatenate([U, [T, 0.0]])
     else:
-        new = PeriodicOrbitProblem(model, problem.param, problem.base_params, **kw)
+        new = _cycle_problem_like(problem, False, problem.base_params, **kw)
         x_star = np.concatenate([U, [T]])
-    dx = np.concatenate([v, np.zeros(new.n - v.size)])
+    x_star, dx = _shooting_seed(new, x_star, v, eps, p_bp)
     new.set_reference(U + eps * v, p_bp)
     try:
         x1, p1, info = solve_with_amplitude(new, x_star + eps * dx, p_bp, x_star, dx, eps)
@@ -706,18 +744,18 @@ def cycles_from_period_doubling(
         raise ContfilError("period-doubling point without its critical eigenvector")
     if isinstance(problem, CollocationProblem):
         return _collocation_period_doubling(problem, sp, eps, side)
-    if type(problem) is not PeriodicOrbitProblem or problem.subspace is not None:
-        raise ContfilError("cycles_from_period_doubling supports full-space PeriodicOrbitProblem")
+    if type(problem) not in (PeriodicOrbitProblem, MultipleShootingProblem) \
+            or problem.subspace is not None:
+        raise ContfilError("cycles_from_period_doubling supports full-space PeriodicOrbitProblem"
+                           " and MultipleShootingProblem")
     x_pd = x_from_point(problem, sp)
     p_pd = float(sp.point.p)
-    T = float(x_pd[-1])
+    u_pd, T = problem.split(x_pd)
     v = _unit_real(sp.data["v_re"]) * side
-    new = PeriodicOrbitProblem(problem.model, problem.param, problem.base_params,
-                               steps=2 * problem.steps, nev=problem.nev,
-                               floquet_tol=problem.floquet_tol)
-    x_star = np.concatenate([x_pd[:-1], [2 * T]])
-    dx = np.concatenate([v, [0.0]])
-    new.set_reference(x_pd[:-1] + eps * v, p_pd)
+    new = _cycle_problem_like(problem, False, problem.base_params, steps=2 * problem.steps,
+                              nev=problem.nev, floquet_tol=problem.floquet_tol)
+    x_star, dx = _shooting_seed(new, np.concatenate([u_pd, [2 * T]]), v, eps, p_pd)
+    new.set_reference(u_pd + eps * v, p_pd)
     try:
         x1, p1, info = solve_with_amplitude(new, x_star + eps * dx, p_pd, x_star, dx, eps)
     except ConvergenceError as exc:
