@@ -256,6 +256,9 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "steps": (_integer(3), None, False,
                   "shooting steps per period of a stored cycle of a model without its own "
                   "time-stepper (default 100)"),
+        "segments": (_integer(1), 1, False,
+                     "multiple-shooting segments of a stored cycle (1: single shooting); "
+                     "branches switched from it inherit them"),
     },
 }
 

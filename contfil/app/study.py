@@ -137,6 +137,7 @@ def root_seed(spec: Spec, info: ModelInfo) -> Seed:
         seed, choice = stored_start(
             start_run_dir(spec), model, branch=st["branch"], point=st["point"],
             subspace=st["subspace"], steps=st["steps"], direction=int(c["direction"]),
+            segments=int(st.get("segments") or 1),
             both_directions=bool(c["both_directions"]),
             p_range=None if c["range"] is None else tuple(c["range"]))
         if seed.problem.param != param:

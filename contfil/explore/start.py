@@ -20,6 +20,11 @@ Problems by branch kind:
 - ``relative_periodic_orbit``: :class:`RelativePeriodicOrbitProblem`, the
   same discretisation with a drift unknown.
 
+With ``segments > 1`` (``[start] segments``) a cycle is shot by
+:class:`~contfil.engine.problems.multiple_shooting.MultipleShootingProblem`
+(or its relative variant) instead; the other segment starts are flowed from
+the stored phase origin, and branches switched from it inherit the segments.
+
 A stored cycle is restarted by shooting even if it was computed by
 collocation: a stored point holds the state at the phase origin and the
 period, which is a shooting orbit's unknowns (the first corrector step
@@ -36,6 +41,10 @@ import numpy as np
 
 from contfil.engine.branch import Branch
 from contfil.engine.problems.equilibrium import EquilibriumProblem
+from contfil.engine.problems.multiple_shooting import (
+    MultipleShootingProblem,
+    RelativeMultipleShootingProblem,
+)
 from contfil.engine.problems.rotating_wave import RotatingWaveProblem
 from contfil.engine.problems.shooting import PeriodicOrbitProblem, RelativePeriodicOrbitProblem
 from contfil.errors import ContfilError, SpecError
@@ -149,9 +158,10 @@ def _in_subspace(sub: Any, u: np.ndarray) -> bool:
 
 
 def start_problem(model: Any, kind: str, param: str, params: np.ndarray,
-                  subspace: str | None, steps: int | None) -> Any:
+                  subspace: str | None, steps: int | None, segments: int = 1) -> Any:
     """The problem of a stored branch of ``kind``, built as the switchers
-    build it (see the module docstring)."""
+    build it (see the module docstring); a cycle with ``segments > 1`` by
+    multiple shooting."""
     if kind == "equilibrium":
         return EquilibriumProblem(model, param, params)
     if kind == "rotating_wave":
@@ -162,6 +172,11 @@ def start_problem(model: Any, kind: str, param: str, params: np.ndarray,
                                   "period_means": PERIOD_MEANS}
         else:
             kw = {"steps": int(steps or 100)}
+        if int(segments) > 1:
+            kw["segments"] = int(segments)
+            if kind == "periodic_orbit":
+                return MultipleShootingProblem(model, param, params, subspace=subspace, **kw)
+            return RelativeMultipleShootingProblem(model, param, params, symmetry_index=0, **kw)
         if kind == "periodic_orbit":
             return PeriodicOrbitProblem(model, param, params, subspace=subspace, **kw)
         return RelativePeriodicOrbitProblem(model, param, params, symmetry_index=0, **kw)
@@ -169,7 +184,8 @@ def start_problem(model: Any, kind: str, param: str, params: np.ndarray,
 
 
 def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float = "last",
-                 subspace: str = "auto", steps: int | None = None, direction: int = 1,
+                 subspace: str = "auto", steps: int | None = None, segments: int = 1,
+                 direction: int = 1,
                  both_directions: bool = False,
                  p_range: tuple[float, float] | None = None) -> tuple[Seed, StartChoice]:
     """The root seed of a study that starts from a stored state.
@@ -186,6 +202,8 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
         (:func:`stored_subspace`).
     steps:
         Shooting steps per period of a cycle of a model without a ``flow``.
+    segments:
+        Multiple-shooting segments of a stored cycle (1: single shooting).
     direction:
         +1 / -1: the sense of the parameter to go first.
     both_directions:
@@ -222,14 +240,22 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
     elif subspace not in SUBSPACE_WORDS:
         raise SpecError(f"start.subspace: only a periodic_orbit is solved in a subspace; the "
                         f"stored branch {bid} is a {br.kind}")
+    if int(segments) > 1 and br.kind not in ("periodic_orbit", "relative_periodic_orbit"):
+        raise SpecError(f"start.segments: only a cycle is shot by multiple shooting; the "
+                        f"stored branch {bid} is a {br.kind}")
     problem = start_problem(model, br.kind, br.param, np.asarray(pt.params, dtype=float),
-                            sub, steps)
+                            sub, steps, segments)
     tail = [float(pt.extra[key]) for key in ("omega", "period", "drift") if key in pt.extra]
     x0 = np.concatenate([u if sub is None else np.asarray(problem.subspace.project(u)), tail])
-    if x0.size != problem.n:
+    multi = isinstance(problem, MultipleShootingProblem)
+    n_single = problem.dim + problem.n_extra if multi else problem.n
+    if x0.size != n_single:
         raise SpecError(f"start.branch: point {k} of {bid} has {x0.size} unknowns, its "
-                        f"{br.kind} problem {problem.n} (the stored point lacks "
+                        f"{br.kind} problem {n_single} (the stored point lacks "
                         f"{['omega', 'period', 'drift']} data)")
+    if multi:
+        # the other segment starts flowed from the stored phase origin
+        x0 = problem.from_single(x0, float(pt.p))
     choice = StartChoice(run=run, branch_id=bid, index=k, p=float(pt.p), subspace=sub)
     seed = Seed(problem=problem, x0=x0, p0=float(pt.p), direction=int(direction),
                 both_directions=both_directions, label=f"{bid}[{k}] of {run.name}",
