@@ -20,7 +20,8 @@
     2.1e3 out of the plane... and in it), solved in the planar subspace from
     the stored orbit with every unknown moved by 1e-3 (relative, random):
     single shooting against 4 segments; and ``m = 1`` against the
-    single-shooting problem at the stored point (residual and Jacobian).
+    single-shooting problem at the stored point (residual and Jacobian); then
+    four continuation points with 4 segments (3-D multipliers, period means).
 
 Usage::
 
@@ -203,6 +204,23 @@ def filament(seed: int = 0) -> dict[str, Any]:
             row["trivial"] = [float(f"{v.real:.4g}") for v in st.values[st.trivial]]
             row["stability_cpu_s"] = round(time.process_time() - t0 - row["cpu_s"], 2)
         out[f"m{m}"] = row
+    # a few continuation points with 4 segments from the stored orbit
+    from contfil.engine.continuation.driver import Continuation, ContinuationSettings
+
+    pb = MultipleShootingProblem(model, info.param, pt.params, subspace=name, segments=4,
+                                 period_means=8)
+    t0 = time.process_time()
+    br = Continuation(pb, pb.initial_guess(u, T, p), p,
+                      ContinuationSettings(ds=0.5, ds_max=1.0, max_points=4,
+                                           p_max=p + 5.0)).run()
+    out["continuation"] = {
+        "cpu_s": round(time.process_time() - t0, 2),
+        "p": [round(q.p, 4) for q in br.points],
+        "newton_iterations": [q.accuracy.get("newton_iterations") for q in br.points],
+        "leading_multiplier": [float(f"{abs(q.eigenvalues[~q.trivial][0]):.4g}")
+                               for q in br.points],
+        "n_unstable": [q.n_unstable for q in br.points],
+    }
     return out
 
 
@@ -229,6 +247,7 @@ def main() -> None:
               f"{f['m1_vs_single_residual']:.1e}, Jacobian {f['m1_vs_single_jacobian']:.1e}")
         for m in (1, 4):
             print(f"  m = {m}: {f[f'm{m}']}")
+        print(f"  continuation, 4 segments: {f['continuation']}")
     tb = res["textbook"]
     summary = {
         "benchmark": "multiple_shooting",
@@ -247,6 +266,8 @@ def main() -> None:
             filament_m4_newton_iterations=f["m4"].get("newton_iterations"),
             filament_m4_period_rel_vs_single=f["m4"].get("period_rel_vs_stored"),
             filament_m1_vs_single=max(f["m1_vs_single_residual"], f["m1_vs_single_jacobian"]),
+            filament_continuation_cpu_s=f["continuation"]["cpu_s"],
+            filament_continuation_points=len(f["continuation"]["p"]),
         )
     print(json.dumps(summary))
 

@@ -104,6 +104,14 @@ def test_rotated_textbook_cycle_exact_period_and_multipliers_at_1e6():
     U = pb.segment_states(xs) @ S.T  # back to (x, y, z)
     np.testing.assert_allclose(np.hypot(U[:, 0], U[:, 1]) ** 2, A, atol=1e-9)
     np.testing.assert_allclose(U[:, 2], 0.0, atol=1e-12)
+    # the phase orientation (branch-point test) agrees with single shooting's
+    single = PeriodicOrbitProblem(model, "a", steps=STEPS, jacobian_update="exact")
+    x1 = np.concatenate([xs[:3], [xs[-1]]])
+    single.set_reference(pb.u_ref, A)
+    for sgn in (1.0, -1.0):  # both crossings of the phase hyperplane
+        pb.f_ref, single.f_ref = sgn * pb.f_ref, sgn * single.f_ref
+        assert pb.phase_orientation(pb.jacobian(xs, A)) == \
+            single.phase_orientation(single.jacobian(x1, A)) == sgn
     st = pb.stability(xs, A)
     assert st.info["method"] == "cyclic" and st.trivial.sum() == 1
     assert st.values[st.trivial][0] == pytest.approx(1.0, abs=1e-9)
