@@ -603,7 +603,13 @@ def cycles_from_branch_point(
                 "symmetry breaking out of an invariant subspace: use cycles_leaving_subspace"
             )
         v = _off_trivial(problem, x_bp, p_bp, v)
-        dx = np.concatenate([v, np.zeros(n - v.size)])
+        if isinstance(problem, MultipleShootingProblem):
+            # the perturbation carried along the segments
+            u0, T = problem.split(x_bp)
+            tail = [T] if problem.n_extra == 1 else [T, float(x_bp[-1])]
+            dx = _shooting_seed(problem, np.concatenate([u0, tail]), v, eps, p_bp)[1]
+        else:
+            dx = np.concatenate([v, np.zeros(n - v.size)])
     else:
         raise ContfilError("cycle branch point without tangent2 or eigenvector data")
     dx = side * dx / np.linalg.norm(dx)
