@@ -371,3 +371,40 @@ def test_filament_segments_at_step_boundaries(integrator: str):
     st = four.stability(x4, p)
     assert st.info["method"] == "cyclic" and set(st.info["block_label"]) == {"in", "out"}
     assert st.values.size == model.dim
+
+
+def test_pitchfork_out_of_the_plane_and_its_branch_by_multiple_shooting():
+    """The bubble of ``tests/test_cycle_events_generic.py`` shot with 3
+    segments: the planar branch (solved in the plane, 3-D multipliers from
+    the in/out segment blocks) reports both pitchforks at their exact values
+    0.3 and 0.7; the tilted branch switched on at the first one is shot with
+    the parent's 3 segments and ends where it re-enters the plane."""
+    from test_cycle_events_generic import A0, CROSSINGS, coupled_plane_model
+
+    from contfil.engine.branch import CYCLE_BRANCH_POINT
+    from contfil.engine.continuation.state import STOP_BRANCH_END
+    from contfil.engine.switching.cycle_ends import branch_end_events
+    from contfil.engine.switching.cycles import cycles_leaving_subspace
+
+    m = coupled_plane_model(k=0.0)
+    pb = MultipleShootingProblem(m, "beta", segments=3, steps=60, subspace="plane", nev=3)
+    x0 = pb.initial_guess(np.array([np.sqrt(0.2), 0.0]), 2 * np.pi, 0.2)
+    s = ContinuationSettings(ds=0.07, ds_max=0.08, max_points=14, p_max=0.8, event_tol=1e-10)
+    planar = Continuation(pb, x0, 0.2, s).run()
+    bps = [sp for sp in planar.special_points if sp.kind == CYCLE_BRANCH_POINT]
+    assert [sp.point.p for sp in bps] == pytest.approx(list(CROSSINGS), abs=1e-7)
+    start = cycles_leaving_subspace(pb, bps[0], eps=0.05, side=1)
+    assert isinstance(start.problem, MultipleShootingProblem)
+    assert start.problem.segments == 3 and start.problem.subspace is None
+    run = start.continuation(ContinuationSettings(ds=0.05, ds_max=0.05, max_points=40,
+                                                  p_max=1.0, event_tol=1e-10),
+                             events=branch_end_events(start))
+    br = run.run()
+    assert run.stop_reason == STOP_BRANCH_END
+    end = next(sp for sp in br.special_points if sp.kind == "subspace_reentry")
+    assert end.point.p == pytest.approx(CROSSINGS[1], abs=1e-7)
+    for pt in br.points[1:-1]:
+        # exact: r² = beta, z² = s(beta), T = 2π
+        assert pt.u[2] ** 2 == pytest.approx(A0 - (pt.p - 0.5) ** 2, abs=1e-7)
+        assert np.hypot(*pt.u[:2]) ** 2 == pytest.approx(pt.p, abs=1e-7)
+        assert pt.extra["period"] == pytest.approx(2 * np.pi, abs=1e-7)
