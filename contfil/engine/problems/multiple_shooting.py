@@ -118,6 +118,11 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         ``u_ref``, ``nev``, ``floquet_tol``, ``period_means``, ``fd_rel``, ...).
     """
 
+    #: Residuals take the segments' exact sweeps instead of flows (models
+    #: with ``flow_tangent``): a sweep is needed at every residual point
+    #: anyway (Jacobian, tangent, multipliers), so the flow would be extra.
+    sweep_in_residual = True
+
     def __init__(
         self,
         model: Model,
@@ -291,13 +296,25 @@ class MultipleShootingProblem(PeriodicOrbitProblem):
         m, d = self.segments, self.dim
         r = np.empty(self.n)
         for i, (ops, tau, _) in enumerate(self._segments(T)):
-            phi = ops.flow(U[i], q, tau)
+            phi = self._segment_flow(ops, U[i], q, tau)
             if i == m - 1:
                 G = self._drift_op(th)
                 phi = phi if G is None else G @ phi
             r[i * d:(i + 1) * d] = phi - U[(i + 1) % m]
         r[m * d:] = self._phase(U[0])
         return r
+
+    def _segment_flow(self, ops: FlowOps, u: Array, q: Array, tau: float) -> Array:
+        """``φ_τ(u)`` for the residual: with exact tangents (and
+        ``sweep_in_residual``) by the segment's sweep, which the Jacobian,
+        tangent and multipliers at the same point then reuse (every residual
+        of the exact-Newton corrector is followed by a Jacobian there), else
+        by a flow."""
+        if self.sweep_in_residual and ops.has_sweep:
+            ft = ops._try_sweep(u, q, tau)
+            if ft is not None:
+                return np.array(ft.phi, dtype=float)
+        return ops.flow(u, q, tau)
 
     def _phase(self, u0: Array) -> Array:
         dv = u0 - self.u_ref
