@@ -51,6 +51,9 @@ Array = NDArray[np.float64]
 MODES = ERROR_ESTIMATE_MODES
 #: Leading non-trivial multipliers (eigenvalues) compared.
 N_LEADING = 3
+#: The kind-specific unknowns compared (``Problem.extra`` may also hold
+#: diagnostics, e.g. a collocation's mesh error).
+EXTRA_UNKNOWNS = ("period", "drift", "omega")
 #: Refinement factor of the estimates.
 FACTOR = 2
 
@@ -124,7 +127,7 @@ def point_errors(pb: Problem, x: Array, p: float, s: ContinuationSettings,
             raise ContfilError(f"fine solve: {info.reason}")
         coarse_extra = pb.extra(x)
         for k, v in fine.extra(xf).items():
-            if k in coarse_extra:
+            if k in coarse_extra and k in EXTRA_UNKNOWNS:
                 out[f"{k}_error"] = float(v) - float(coarse_extra[k])
         if stability is not None and s.compute_stability:
             out["multiplier_error"] = multiplier_error(stability, fine.stability(xf, p, False))
