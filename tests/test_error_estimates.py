@@ -176,3 +176,18 @@ def test_store_round_trip_and_labels(tmp_path):
     assert special_label(sp) == "cycle_fold@0.3±2.5e-05"
     old = SpecialPoint(CYCLE_FOLD, pt, 0, {})  # an old run: no estimate
     assert special_label(old) == "cycle_fold@0.3"
+
+
+def test_spec_key_reaches_the_engine_settings():
+    from contfil.app.spec import loads_spec
+    from contfil.app.study import engine_settings
+
+    base = '[model]\nname = "z2_pitchfork"\n[continuation]\nparameter = "mu"\n' \
+           'range = [-1.0, 1.0]\n'
+    assert engine_settings(loads_spec(base)).error_estimates == "points"
+    for mode in ("off", "special", "points", "full"):
+        spec = loads_spec(base + f'error_estimates = "{mode}"\n')
+        assert spec.continuation["error_estimates"] == mode
+        assert engine_settings(spec).error_estimates == mode
+    with pytest.raises(SpecError, match="continuation.error_estimates"):
+        loads_spec(base + 'error_estimates = "all"\n')
