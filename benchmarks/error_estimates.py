@@ -12,7 +12,9 @@ order ``q``: 0.75 second order, 0.94 fourth, 0.97 fifth):
 * its subcritical fold of cycles (exact at μ = -1/4): ``p_error``;
 * filament beating (tip SF, planar, b1 = 742.5): BDF2 at T/400 and Radau
   IIA at 80 steps, the true error against Radau IIA at 640 steps (its own
-  error is below 1e-10); ``--no-filament`` skips it.
+  error is below 1e-10); ``--no-filament`` skips it;
+* ``--pitchfork``: the beating pitchfork located by a BDF2 ``T/400``
+  continuation with ``p_error``, against the Radau IIA reference.
 
 Cost: wall time of a continuation run with ``error_estimates = "points"``
 against ``"off"`` (per point), and for the filament the estimate's time
@@ -195,6 +197,46 @@ def filament_case() -> dict[str, Any]:
     return out
 
 
+#: The beating pitchfork of tip SF by Radau IIA at 128 steps (docs/accuracy.md,
+#: "The beating pitchfork against resolution"; its own error ~2e-7).
+PITCHFORK_REF = 744.0087729
+
+
+def pitchfork_case() -> dict[str, Any]:
+    """The beating pitchfork (planar -> 3D) located by continuation with BDF2
+    at ``T/400`` and ``error_estimates = "special"``: ``p_error`` against the
+    true error (the Radau IIA reference)."""
+    from contfil.models.filament import FilamentModel
+    from contfil.models.filament.cycles import FixedStepFlow
+
+    scene = ROOT / "branches" / "tip_sf.toml"
+    d = json.loads((ROOT / "docs/figures/filament_tip_sf_beating.json").read_text())
+    p0 = 743.6
+    pts = sorted(d["points"], key=lambda q: q["p"])
+    lo = max((q for q in pts if q["p"] <= p0), key=lambda q: q["p"])
+    hi = min((q for q in pts if q["p"] >= p0), key=lambda q: q["p"])
+    w = (p0 - lo["p"]) / (hi["p"] - lo["p"])
+    x0 = (1 - w) * np.array(lo["x"]) + w * np.array(hi["x"])
+    pb = PeriodicOrbitProblem(FixedStepFlow(FilamentModel(scene), 400), "b1", np.array([p0]),
+                              subspace="planar_xz", nev=13, floquet_tol=1e-8)
+    pb.set_reference(x0[:-1], p0)
+    x, info = newton_dense(lambda z: pb.residual(z, p0), lambda z: pb.jacobian(z, p0), x0,
+                           tol=1e-10, max_iter=15)
+    t0 = time.perf_counter()
+    br = Continuation(pb, x, p0, ContinuationSettings(
+        ds=0.2, ds_max=0.3, max_points=4, p_max=744.4, error_estimates="special")).run()
+    t_run = time.perf_counter() - t0
+    sps = [sp for sp in br.special_points if "p_error" in sp.data]
+    if not sps:
+        return {"found": [sp.kind for sp in br.special_points], "time_run": t_run}
+    sp = sps[0]
+    true = PITCHFORK_REF - sp.point.p
+    return {"kind": sp.kind, "p": sp.point.p, "p_error": sp.data["p_error"], "p_true": true,
+            "ratio": (sp.data["p_error"] or np.nan) / true,
+            "time_estimate": sp.data["p_error_time"], "time_run": t_run,
+            "failed": sp.data.get("p_error_failed")}
+
+
 def main() -> None:
     rows: dict[str, Any] = {}
     for method, steps in (("heun", 40), ("rk4", 12), ("radau", 6)):
@@ -208,6 +250,9 @@ def main() -> None:
     print(f"fold of cycles (Radau, 6 steps): {rows['fold_radau6']}", flush=True)
     if "--no-filament" not in sys.argv:
         rows["filament"] = filament_case()
+    if "--pitchfork" in sys.argv:
+        rows["pitchfork"] = pitchfork_case()
+        print(f"pitchfork (BDF2 T/400): {rows['pitchfork']}", flush=True)
     summary = {
         "ratio_heun": rows["heun"]["period_ratio"], "ratio_rk4": rows["rk4"]["period_ratio"],
         "ratio_radau": rows["radau"]["period_ratio"],
@@ -223,6 +268,9 @@ def main() -> None:
             summary[f"filament_{k}"] = {q: f[k][q] for q in (
                 "period_error_est", "period_error_true", "multiplier_error_est",
                 "multiplier_error_true", "cost_vs_point")}
+    if "pitchfork" in rows:
+        summary["pitchfork_bdf2_T400"] = {k: rows["pitchfork"].get(k) for k in (
+            "p_error", "p_true", "ratio", "time_estimate")}
     print(json.dumps(summary, default=float))
 
 
