@@ -191,3 +191,35 @@ def test_spec_key_reaches_the_engine_settings():
         assert engine_settings(spec).error_estimates == mode
     with pytest.raises(SpecError, match="continuation.error_estimates"):
         loads_spec(base + 'error_estimates = "all"\n')
+
+
+def test_collocation_cycle_branch_point_location_estimate():
+    """The designed system's branch point of cycles lies at p = 0.4 at every
+    resolution (circular orbits): the estimate is found on the fine mesh's own
+    bordered test (the previous attempt failed on a border of the coarse
+    size) and is ~0."""
+    from contfil.engine.branch import CYCLE_BRANCH_POINT
+    from contfil.models.catalog.cycles_designed import (
+        designed_cycles,
+        exact_multipliers,
+        exact_radius2,
+    )
+
+    m = designed_cycles()
+    pb = CollocationProblem(m, "p", ntst=8)
+    p0 = 0.55
+    T = exact_multipliers(p0)["period"]
+    t = np.linspace(0.0, T, 200)
+    u = np.zeros((t.size, 7))
+    r = np.sqrt(exact_radius2(p0))
+    u[:, 0], u[:, 1] = r * np.cos(2 * np.pi * t / T), r * np.sin(2 * np.pi * t / T)
+    br = Continuation(pb, pb.x_from_samples(t, u), p0, ContinuationSettings(
+        ds=0.1, ds_max=0.1, max_points=4, p_min=0.2, event_tol=1e-9,
+        error_estimates="special"), direction=-1).run()
+    bp = next(sp for sp in br.special_points if sp.kind == CYCLE_BRANCH_POINT)
+    # the coarse location is as good as the localiser's bracket (the bordered
+    # test is only as smooth as the corrector): the discretisation adds ~0
+    assert abs(bp.point.p - 0.4) <= bp.data["bracket"]
+    assert "p_error_failed" not in bp.data
+    assert abs(bp.data["p_error"]) < 1e-7
+    assert bp.data["error_order"] == 8
