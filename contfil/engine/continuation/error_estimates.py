@@ -54,6 +54,11 @@ N_LEADING = 3
 #: The kind-specific unknowns compared (``Problem.extra`` may also hold
 #: diagnostics, e.g. a collocation's mesh error).
 EXTRA_UNKNOWNS = ("period", "drift", "omega")
+#: The fine solve of a point stops once its residual is this fraction of the
+#: first one (the coarse point's residual on the fine problem, i.e. of the size
+#: of the discretisation error): Newton converges quadratically from there, so
+#: this is usually one iteration, and the estimate is exact to this fraction.
+SOLVE_REL_TOL = 1e-4
 #: Refinement factor of the estimates.
 FACTOR = 2
 
@@ -75,15 +80,18 @@ def refined(pb: Problem, factor: int = FACTOR) -> Problem | None:
 
 def solve_fixed_p(fine: Problem, x0: Array, p: float, s: ContinuationSettings
                   ) -> tuple[Array, NewtonInfo]:
-    """Newton on ``fine`` at the fixed parameter ``p`` from ``x0``."""
+    """Newton on ``fine`` at the fixed parameter ``p`` from ``x0``, to the
+    run's tolerance or :data:`SOLVE_REL_TOL` of the first residual, whichever
+    is larger (the estimate is then exact to that fraction)."""
     def F(x: Array) -> Array:
         return fine.residual(x, p)
 
+    r0 = float(np.max(np.abs(F(x0))))
+    tol = max(s.newton_tol, SOLVE_REL_TOL * r0)
     if fine.dense:
-        return newton_dense(F, lambda x: fine.jacobian(x, p), x0, s.newton_tol,
-                            s.newton_max_iter)
+        return newton_dense(F, lambda x: fine.jacobian(x, p), x0, tol, s.newton_max_iter)
     kw = {k: v for k, v in s.krylov.items() if k not in ("tangent_rtol", "bp_rtol")}
-    return newton_krylov(F, lambda x, v: fine.jvp(x, p, v), x0, s.newton_tol,
+    return newton_krylov(F, lambda x, v: fine.jvp(x, p, v), x0, tol,
                          max(s.newton_max_iter, 15), **kw)
 
 
