@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from contfil.engine.continuation.settings import ERROR_ESTIMATE_MODES
 from contfil.errors import SpecError
 
 # ----------------------------------------------------------------- checkers
@@ -199,6 +200,10 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "max_newton": (_integer(1), 10, False, "Newton iterations per step"),
         "stability": (_boolean, True, False, "compute eigenvalues/multipliers at points"),
         "both_directions": (_boolean, False, False, "continue the root branch both ways"),
+        "error_estimates": (_choice(*ERROR_ESTIMATE_MODES), "points", False,
+                            "error estimates from two resolutions (docs/accuracy.md): off, "
+                            "special (special points: p_error), points (also every point's "
+                            "period and multiplier errors), full (also the observables)"),
     },
     "explorer": {
         "depth": (_integer(0), 1, False, "switches away from the root branch (0: root only)"),

@@ -176,6 +176,7 @@ def engine_settings(spec: Spec) -> ContinuationSettings:
         max_points=10**9, p_min=lo, p_max=hi,
         newton_tol=c["tol"], newton_max_iter=c["max_newton"],
         compute_stability=c["stability"],
+        error_estimates=c.get("error_estimates", "points"),
     )
 
 

@@ -532,6 +532,7 @@ class BranchGraph:
                 born = [b for _, b in self.g.out_edges(sid) if b in self._branches]
                 lines.append(
                     f"    {s['label']:<5} {s['kind']:<18} {br.param}={s['p']:.8g}"
+                    + _pm(self._sps[sid].data.get("p_error"))
                     + ("" if s["switchable"] else "  (not switchable)")
                     + (f"  -> {', '.join(born)}" if born else "")
                     + (f"  [switch failed: {sp.data['switch_error'][:120]}]"
@@ -699,3 +700,12 @@ def _unflatten(G: nx.Graph) -> None:
         unflat(a)
     for _, _, a in G.edges(data=True):
         unflat(a)
+
+
+def _pm(err: Any) -> str:
+    """``±|err|`` of a location's error estimate (``""`` when there is none)."""
+    try:
+        e = float(err)
+    except (TypeError, ValueError):
+        return ""
+    return f"±{abs(e):.2g}" if np.isfinite(e) else ""

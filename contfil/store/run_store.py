@@ -44,7 +44,13 @@ from contfil.store.atomic import (
     remove_orphan_temps,
 )
 from contfil.store.lock import RunLock, is_locked
-from contfil.store.task_log import TaskLog, TaskRecords, parse_task_records, task_name
+from contfil.store.task_log import (
+    TaskLog,
+    TaskRecords,
+    parse_task_records,
+    special_label,
+    task_name,
+)
 
 __all__ = ["FORMAT", "RunStore", "TaskLog", "TaskRecords", "load_run_graph",
            "parse_task_records", "run_state", "save_graph_graphml", "save_graph_json",
@@ -368,7 +374,7 @@ def task_summaries(run: str | Path) -> list[str]:
         seed = (recs.header or {}).get("seed", {})
         last = recs.points[-1] if recs.points else None
         where = "" if last is None else f"last p={last.p:.8g}"
-        kinds = ",".join(sp.kind for sp in recs.specials)
+        kinds = ",".join(special_label(sp) for sp in recs.specials)
         lines.append(
             f"{f.stem:<7} {seed.get('kind', '?'):<16} {len(recs.points):4d} points  {where}"
             + (f"  specials: {kinds}" if kinds else "")

@@ -21,6 +21,18 @@ from contfil.errors import ContfilError
 from contfil.store.atomic import RecordLog
 
 
+def special_label(sp: SpecialPoint) -> str:
+    """``kind@p`` of a special point, with ``±|p_error|`` when its location
+    carries an error estimate (runs stored before estimates have none)."""
+    label = f"{sp.kind}@{sp.point.p:.8g}"
+    err = sp.data.get("p_error")
+    try:
+        e = abs(float(err))
+    except (TypeError, ValueError):
+        return label
+    return label + (f"±{e:.2g}" if np.isfinite(e) else "")
+
+
 def task_name(k: int, direction: int | None = None) -> str:
     """Name of continuation task ``k`` (``T0003``), with the sense of one
     segment when ``direction`` is given (``T0003+`` / ``T0003-``)."""

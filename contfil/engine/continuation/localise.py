@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from contfil.engine.branch import Point, SpecialPoint
 from contfil.engine.continuation.corrector import PseudoArclength
+from contfil.engine.continuation.error_estimates import add_point_errors, location_error
 from contfil.engine.events.base import Event, EventContext
 from contfil.errors import ContfilError
 
@@ -213,4 +214,11 @@ class Localiser:
         if pt.eigenvalues is None and ev.needs_stability:
             pt.eigenvalues = np.asarray(ctx.stability.values, dtype=complex)
             pt.n_unstable = ctx.stability.n_unstable
+        mode = getattr(self.settings, "error_estimates", "off")
+        if mode != "off":
+            if mode == "special":
+                add_point_errors(pt, self.pa.problem, ctx, self.settings)
+            # the location again on the refined problem (p_error; nothing
+            # for a problem that cannot refine)
+            data.update(location_error(self.pa.problem, self.settings, ev, j, r0, r1, pt.p))
         return float(sm), SpecialPoint(kind, pt, -1, data)

@@ -7,6 +7,7 @@ import time
 import numpy as np
 
 from contfil.engine.branch import Point
+from contfil.engine.continuation.error_estimates import add_point_errors
 from contfil.engine.continuation.settings import ContinuationSettings
 from contfil.engine.events.base import EventContext
 from contfil.engine.linalg.newton import NewtonInfo
@@ -17,7 +18,9 @@ def make_point(pb: Problem, s: ContinuationSettings, ctx: EventContext,
                info: NewtonInfo | None, ds: float, t0: float, evals0: int) -> Point:
     """The point at ``ctx``: state, parameters, tangent, the step ``ds`` that
     follows it, stability (``s.compute_stability``), corrector accuracy
-    (``info``), observables and cost since ``t0`` / ``evals0``."""
+    (``info``), observables, error estimates (``s.error_estimates`` "points"
+    or "full": :func:`.error_estimates.point_errors` in ``accuracy``) and
+    cost since ``t0`` / ``evals0``."""
     x, p = ctx.x, ctx.p
     pt = Point(u=np.array(pb.state(x), dtype=float), p=p, params=pb.params_at(p),
                kind=pb.kind, extra=dict(pb.extra(x)), tangent=ctx.tangent.copy(),
@@ -36,6 +39,8 @@ def make_point(pb: Problem, s: ContinuationSettings, ctx: EventContext,
         obs = pb.observables(x, p)
         if obs is not None:
             pt.observables = dict(obs)
+    if s.error_estimates in ("points", "full"):
+        add_point_errors(pt, pb, ctx, s)
     pt.cost["wall_time"] = time.perf_counter() - t0
     if pb.rhs_evals is not None:
         pt.cost["rhs_evals"] = float(pb.rhs_evals - evals0)

@@ -33,6 +33,8 @@ FOLD_COND_MAX = 1e13
 #: ... and that null vector has no ``p`` component when ``|tau_p|`` is below
 #: this (then its sign is fixed by its largest state component).
 FOLD_TAU_P_ZERO = 1e-12
+#: The values of ``ContinuationSettings.error_estimates`` (see there).
+ERROR_ESTIMATE_MODES = ("off", "special", "points", "full")
 
 
 def arclength_weights(n: int, theta: float) -> Array:
@@ -87,6 +89,14 @@ class ContinuationSettings:
         GMRES solve of the tangent (default :data:`TANGENT_RTOL`) and
         ``bp_rtol`` for the bordered branch-point solves (default
         ``tangent_rtol`` when set, else 1e-9).
+    error_estimates:
+        Error estimates from two resolutions (:mod:`.error_estimates`; only
+        for problems that can refine their discretisation): ``"off"``;
+        ``"special"`` (special points: ``p_error`` of the location and the
+        point estimates there); ``"points"`` (default: also every point's
+        ``period_error`` etc. and ``multiplier_error``); ``"full"`` (also
+        the observables' ``error_<name>``). Stored in ``Point.accuracy``
+        and ``SpecialPoint.data``.
     verbose:
         Print one line per accepted point.
     """
@@ -114,6 +124,7 @@ class ContinuationSettings:
     eig_vectors: bool = False
     compute_observables: bool = True
     krylov: dict[str, Any] = field(default_factory=dict)
+    error_estimates: str = "points"
     verbose: bool = False
 
     @classmethod
@@ -174,6 +185,9 @@ class ContinuationSettings:
             raise ValueError(
                 f"ContinuationSettings: max_points must be >= 1, got {self.max_points}"
             )
+        if self.error_estimates not in ERROR_ESTIMATE_MODES:
+            raise ValueError(f"ContinuationSettings: error_estimates must be one of "
+                             f"{ERROR_ESTIMATE_MODES}, got {self.error_estimates!r}")
         for name in ("shrink", "slow_shrink"):
             if not (0.0 < getattr(self, name) < 1.0):
                 raise ValueError(

@@ -101,7 +101,9 @@ class Problem(ABC):
     :meth:`params_at`, :meth:`observables`, :meth:`default_events`,
     :meth:`sparse_jacobian`, :meth:`preconditioner`,
     :meth:`accept`, :meth:`restart_data` / :meth:`restore` (what a resumed
-    run needs besides ``(x, p)``, e.g. a phase reference).
+    run needs besides ``(x, p)``, e.g. a phase reference), :meth:`refine` /
+    :meth:`onto_refined` (a finer discretisation of the same problem, for
+    error estimates from two resolutions).
     """
 
     n: int
@@ -122,6 +124,10 @@ class Problem(ABC):
     #: whose iterations differ in kind (``None``: every iteration counts 1;
     #: the step control then reads the iteration count).
     jacobian_effort: float | None = None
+    #: Order of the discretisation error of the reported quantities (period,
+    #: multipliers), when known: the estimate from two resolutions (factor 2)
+    #: is then ``1 - 2^-order`` of the coarse error (``None``: unknown).
+    discretisation_order: int | None = None
 
     @abstractmethod
     def residual(self, x: Array, p: float) -> Array:
@@ -194,6 +200,20 @@ class Problem(ABC):
     def restore(self, data: dict[str, Array]) -> None:
         """Restore what :meth:`restart_data` returned. Default: nothing."""
         return None
+
+    def refine(self, factor: int = 2) -> Problem | None:
+        """The same problem on a discretisation ``factor`` times finer (time
+        steps, mesh intervals), with the same phase references, or ``None``
+        when the problem has no discretisation to refine (the default; an
+        equilibrium has none). Used for error estimates from two resolutions
+        (:mod:`contfil.engine.continuation.error_estimates`)."""
+        return None
+
+    def onto_refined(self, x: Array, fine: Problem) -> Array:
+        """The unknowns ``x`` of this problem carried onto ``fine`` (a problem
+        returned by :meth:`refine`): a starting guess for a solve there.
+        Default: ``x`` itself (same unknowns at both resolutions)."""
+        return np.array(x, dtype=float, copy=True)
 
 
 def resolve_params(model: Any, params: Any, who: str) -> Array:

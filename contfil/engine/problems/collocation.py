@@ -220,6 +220,8 @@ class CollocationProblem(Problem):
         self.verify_tol = float(verify_tol)
         self.stage_tol = float(stage_tol)
         self.period_means = int(period_means)
+        #: mesh values and the period converge as h^(2 ncol) (Gauss collocation)
+        self.discretisation_order = 2 * self.ncol
         self.nev = self.dim  # all multipliers are computed
         self.ref: dict[str, Array] | None = None
         self._sol: OrderedDict[bytes, dict[str, Any]] = OrderedDict()
@@ -733,6 +735,61 @@ class CollocationProblem(Problem):
         if float(np.max(np.abs(r))) <= 10 * tol:
             return x
         raise ConvergenceError(f"collocation re-solve: residual {np.max(np.abs(r)):.2e}")
+
+    # ------------------------------------------------------------- refinement
+    def refine(self, factor: int = 2) -> CollocationProblem | None:
+        """This problem on the mesh with every interval split into ``factor``
+        equal ones (``factor * ntst`` intervals, the same ``ncol``; the
+        coarse piecewise polynomials lie in the fine space), without mesh
+        adaptation; the phase reference is set by the first residual (the
+        coarse orbit carried over by :meth:`onto_refined`)."""
+        k = int(factor)
+        if k < 2:
+            raise SpecError(f"refine: factor must be >= 2, got {factor!r}")
+        s = np.linspace(0.0, 1.0, k + 1)[:-1]
+        tau = np.concatenate([(self.tau[:-1, None] + self.h[:, None] * s[None, :]).ravel(),
+                              [1.0]])
+        sub = None
+        if self.subspace is not None:
+            sub = next(n for n, v in self.model.symmetries.invariant_subspaces.items()
+                       if v is self.subspace)
+        fine = CollocationProblem(
+            self.model, self.param, self.base_params, ntst=k * self.ntst, ncol=self.ncol,
+            mesh=tau, adapt=False, jacobian="auto" if self.vf.exact else "fd",
+            trivial_tol=self.trivial_tol,
+            dense_threshold=self.dense_threshold, stage_tol=self.stage_tol,
+            period_means=self.period_means, subspace=sub)
+        return fine
+
+    def onto_refined(self, x: Array, fine: Problem) -> Array:
+        """The orbit ``x`` evaluated at the mesh points of ``fine`` (exact:
+        the coarse polynomials lie in the fine space); its stages warm-start
+        the fine stage solve."""
+        if not isinstance(fine, CollocationProblem):
+            raise SpecError("onto_refined: not a collocation problem")
+        x = np.asarray(x, dtype=float)
+        return self._onto(x, self._param_of(x), fine, float(x[-1]))
+
+    def _param_of(self, x: Array) -> float:
+        """The parameter at which the orbit ``x`` was last solved (its stage
+        solution is cached under ``(x, p, mesh)``); else the last accepted
+        orbit's, else the base parameter (a guess: the fine solve corrects)."""
+        xb = np.asarray(x, dtype=float).tobytes()
+        for key in reversed(self._sol):
+            if key.startswith(xb) and key.endswith(self._tau_bytes) and \
+                    len(key) == len(xb) + 8 + len(self._tau_bytes):
+                return float(struct.unpack("d", key[len(xb): len(xb) + 8])[0])
+        if self.records:
+            return float(next(reversed(self.records.values()))[2])
+        return float(self.base_params[self.ip])
+
+    def _onto(self, x: Array, p: float, fine: CollocationProblem, T: float) -> Array:
+        K = self.stages(x, p)
+        u, _ = self.evaluate(x, p, fine.tau[:-1], K=K)
+        tc = (fine.tau[:-1, None] + fine.h[:, None] * fine.table.c[None, :]).ravel()
+        _, du = self.evaluate(x, p, tc, K=K)
+        fine._warm = du.reshape(fine.ntst, fine.ncol, fine.dim) / T
+        return np.concatenate([u.ravel(), [T]])
 
     # ------------------------------------------------------------- starting data
     def x_from_samples(self, t: Array, u: Array, period: float | None = None) -> Array:

@@ -40,6 +40,7 @@ at the embedded orbit, so modes leaving the subspace are seen.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from typing import Any
 
@@ -52,7 +53,7 @@ from contfil.engine.flows.ops import FlowOps
 from contfil.engine.linalg.floquet import floquet_from_blocks, floquet_multipliers
 from contfil.engine.problems.base import Problem, Stability, resolve_params
 from contfil.errors import DomainError, SpecError
-from contfil.protocol import Model, param_index
+from contfil.protocol import Model, flow_tangent_hook, param_index
 
 Array = NDArray[np.float64]
 
@@ -187,6 +188,10 @@ class PeriodicOrbitProblem(Problem):
         self.floquet_tol = float(floquet_tol)
         self.floquet_kmax = floquet_kmax
         self.period_means = int(period_means)
+        #: the default flow is Radau IIA (order 5); a model flow declares
+        #: its order as ``flow_order`` (unknown otherwise)
+        self.discretisation_order = 5 if self.ops.radau is not None else \
+            getattr(self.solve_model, "flow_order", None)
         # exact tangents: one sweep per Jacobian, period samples taken along it
         self.broyden = self.ops.has_sweep and jacobian_update == "broyden"
         self.exact_below = float(exact_below)
@@ -453,6 +458,51 @@ class PeriodicOrbitProblem(Problem):
             u = self.ops.flow(u, q, T / k)
         return _means(samples)
 
+    # --- refinement (error estimates) ----------------------------------------
+    def refine(self, factor: int = 2) -> PeriodicOrbitProblem | None:
+        """This problem with ``factor`` times the time steps per period (the
+        same phase reference): ``steps`` of the default Radau flow, a model's
+        own ``flow_kwargs`` ``steps`` / ``dt``, or for a model with its own
+        flow ``factor * model.flow_steps(T)`` steps (the model's ``flow`` and
+        ``flow_tangent`` must take ``steps=``). ``None`` for a model flow of
+        unknown resolution (no ``flow_steps``) and for subclasses with their
+        own residual (they refine themselves)."""
+        if type(self).residual not in (PeriodicOrbitProblem.residual,
+                                       RelativePeriodicOrbitProblem.residual):
+            return None
+        k = int(factor)
+        if k < 2:
+            raise SpecError(f"refine: factor must be >= 2, got {factor!r}")
+        kw = dict(self._flow_kw)
+        fkw = dict(kw.get("flow_kwargs") or {})
+        model, solve_model = self.model, self.solve_model
+        if self.ops.radau is None:
+            if "steps" in fkw:
+                fkw["steps"] = k * int(fkw["steps"])
+            elif "dt" in fkw:
+                fkw["dt"] = float(fkw["dt"]) / k
+            elif callable(getattr(solve_model, "flow_steps", None)):
+                solve_model = RefinedFlow(solve_model, k)
+                model = solve_model if self.subspace is None else RefinedFlow(model, k)
+            else:
+                return None
+        kw["flow_kwargs"] = fkw or None
+        fine = copy.copy(self)
+        fine.steps = k * self.steps
+        fine.model, fine.solve_model = model, solve_model
+        fine._flow_kw = kw
+        fine.ops = FlowOps(solve_model, steps=fine.steps, param_index=self.ip, **kw)
+        fine._full_ops = None if self.subspace is not None else fine.ops
+        if fine.ops.has_sweep:
+            fine.ops.samples = self.period_means
+        fine._rec, fine._J, fine._effort = None, None, 0.0
+        fine.period_floor_hits = 0
+        for name in ("u_ref", "f_ref", "l_ref"):
+            v = getattr(self, name, None)
+            if v is not None:
+                setattr(fine, name, np.array(v, dtype=float, copy=True))
+        return fine
+
     def default_events(self) -> list:
         """Fold, branch point, period doubling and torus of cycles, and for a
         subspace solve the symmetry-breaking pitchfork out of the subspace."""
@@ -643,6 +693,38 @@ class RelativePeriodicOrbitProblem(PeriodicOrbitProblem):
 
     def _drift_map(self, x: Array) -> Array | None:
         return self.G(float(x[self.dim + 1]))
+
+
+class RefinedFlow:
+    """A model whose ``flow`` (and ``flow_tangent``) takes ``factor`` times
+    the model's ``flow_steps(T)`` steps; every other attribute is the
+    model's (:meth:`PeriodicOrbitProblem.refine`)."""
+
+    def __init__(self, model: Any, factor: int) -> None:
+        self.base = model
+        self.factor = int(factor)
+        if flow_tangent_hook(model) is not None:
+            self.flow_tangent = self._flow_tangent
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.base, name)
+
+    def flow_steps(self, T: float) -> int:
+        """``factor`` times the model's steps over ``T``."""
+        return self.factor * int(self.base.flow_steps(T))
+
+    def flow(self, u: Array, p: Array, T: float, **kw: Any) -> Array:
+        """The model's flow at ``factor`` times its resolution."""
+        steps = kw.pop("steps", None)
+        n = self.flow_steps(T) if steps is None else self.factor * int(steps)
+        return self.base.flow(u, p, T, steps=n, **kw)
+
+    def _flow_tangent(self, u: Array, p: Array, T: float, V: Array | None = None,
+                      param_index: int | None = None, samples: int = 0,
+                      steps: int | None = None) -> Any:
+        n = self.flow_steps(T) if steps is None else self.factor * int(steps)
+        return self.base.flow_tangent(u, p, T, V, param_index=param_index, samples=samples,
+                                      steps=n)
 
 
 def _means(samples: list[Any]) -> dict[str, float]:
