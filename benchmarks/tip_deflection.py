@@ -214,7 +214,8 @@ def main() -> None:
         if "missing" in res:
             print(f"| {name} | no stored run | | | | | | | | | | | | |")
             continue
-        res["figure"] = str(figure(res, out / f"high_{name}_deflection.png"))
+        if any(b["kind"] == "relative_periodic_orbit" for b in res["branches"]):
+            res["figure"] = str(figure(res, out / f"high_{name}_deflection.png"))
         for b in res["branches"]:
             m, ms = b["maximum"], b["maximum_stable"]
             last = LAST.get((name, b["id"]))
