@@ -53,6 +53,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from contfil.app.spec import load_spec  # noqa: E402
 from contfil.app.study import build_model  # noqa: E402
+from contfil.engine.linalg.newton import newton_dense  # noqa: E402
+from contfil.engine.problems.shooting import RelativePeriodicOrbitProblem  # noqa: E402
 from contfil.models.filament.deflection import state_deflection  # noqa: E402
 from contfil.store.run_store import load_run_graph  # noqa: E402
 
@@ -119,7 +121,102 @@ def branch_maximum(p: np.ndarray, v: np.ndarray, mask: np.ndarray | None = None
     return out
 
 
-def measure_model(name: str, beating_every: int) -> dict[str, Any]:
+def _x(pt: Any) -> np.ndarray:
+    return np.concatenate([np.asarray(pt.u, dtype=float),
+                           [float(pt.extra["period"]), float(pt.extra.get("drift", 0.0))]])
+
+
+def solve_orbit(model: Any, param: str, params: np.ndarray, p: float,
+                xa: tuple[float, np.ndarray], xb: tuple[float, np.ndarray]) -> np.ndarray:
+    """The relative periodic orbit at ``p``, by Newton (exact Jacobians) from
+    the linear interpolation of two solved orbits ``(p_a, x_a)``, ``(p_b, x_b)``
+    (``x = (u, T, drift)``), at the stored runs' resolution."""
+    (pa, a), (pb_, b) = xa, xb
+    w = (p - pa) / (pb_ - pa)
+    x0 = (1.0 - w) * a + w * b
+    pb = RelativePeriodicOrbitProblem(model, param, params, steps=int(model.flow_steps(1.0)),
+                                      jacobian_update="exact")
+    pb.set_reference(x0[: model.dim], p)
+    x, info = newton_dense(lambda x: pb.residual(x, p), lambda x: pb.jacobian(x, p), x0,
+                           tol=1e-10)
+    if not info.converged:
+        raise RuntimeError(f"solve_orbit: no convergence at {param} = {p} ({info.reason})")
+    return x
+
+
+def _defl(model: Any, x: np.ndarray, params: np.ndarray) -> float:
+    n = model.dim
+    return state_deflection(model, x[:n], params, float(x[n]), float(x[n + 1])).value
+
+
+def refine_maximum(model: Any, br: Any, k: int, values: dict[int, float], param: str,
+                   rtol: float = 1e-4, max_solves: int = 5) -> dict[str, Any] | None:
+    """The deflection's maximum near stored point ``k`` by successive parabolas.
+
+    Start from the stored points ``k-1, k, k+1``; solve the orbit at the
+    vertex of the parabola through the three largest values found so far,
+    measure its deflection, and repeat until the vertex moves by less than
+    ``rtol`` of the bracket or ``max_solves`` orbits are solved. Error
+    estimate of the location: the last move of the vertex and the gap to
+    the vertex of the parabola through the other neighbours (whichever is
+    larger); of the value: the gap between the parabola's vertex value and
+    the measured deflection there.
+    """
+    ip = list(model.param_names).index(param)
+    params = np.asarray(br.points[k].params, dtype=float).copy()
+    pts = [(float(br.points[j].p), values[j], _x(br.points[j])) for j in (k - 1, k, k + 1)]
+    ps = [q[0] for q in pts]
+    if not (min(ps[0], ps[2]) < ps[1] < max(ps[0], ps[2])):
+        return None  # the branch turns here
+    hist: list[float] = []
+    solves = 0
+    vx_val = None
+    while True:
+        best = sorted(sorted(pts, key=lambda q: -q[1])[:3], key=lambda q: q[0])
+        vx = _vertex(np.array([q[0] for q in best]), np.array([q[1] for q in best]), [0, 1, 2])
+        if vx is None:
+            break
+        hist.append(vx[0])
+        vx_val = vx[1]
+        span = best[2][0] - best[0][0]
+        if (len(hist) >= 2 and abs(hist[-1] - hist[-2]) <= rtol * span) or solves >= max_solves:
+            break
+        pv = vx[0]
+        lo = max((q for q in pts if q[0] < pv), key=lambda q: q[0])
+        hi = min((q for q in pts if q[0] > pv), key=lambda q: q[0])
+        params[ip] = pv
+        x = solve_orbit(model, param, params, pv, (lo[0], lo[2]), (hi[0], hi[2]))
+        pts.append((pv, _defl(model, x, params), x))
+        solves += 1
+    if not hist:
+        return None
+    best = max(pts, key=lambda q: q[1])
+    p_err = abs(hist[-1] - hist[-2]) if len(hist) >= 2 else None
+    return {"p_max": hist[-1], "max": best[1], "p_err": p_err,
+            "max_err": abs(vx_val - best[1]) if vx_val is not None else None,
+            "solves": solves, "vertex_history": hist}
+
+
+def value_at_special(model: Any, g: Any, bid: str, br: Any, k: int, param: str
+                     ) -> dict[str, Any] | None:
+    """The deflection at the special point localised on ``bid`` between its
+    points ``k`` and ``k+1`` (the end of a stable stretch), solved there."""
+    if k + 1 >= len(br.points):
+        return None
+    pa, pb_ = float(br.points[k].p), float(br.points[k + 1].p)
+    for sid, sp in g.special_points.items():
+        if bid in g.branches_at(sid) and min(pa, pb_) <= float(sp.point.p) <= max(pa, pb_):
+            ps = float(sp.point.p)
+            params = np.asarray(br.points[k].params, dtype=float).copy()
+            params[list(model.param_names).index(param)] = ps
+            x = solve_orbit(model, param, params, ps, (pa, _x(br.points[k])),
+                            (pb_, _x(br.points[k + 1])))
+            return {"label": g.label(sid), "kind": sp.kind, "p": ps,
+                    "deflection": _defl(model, x, params)}
+    return None
+
+
+def measure_model(name: str, beating_every: int, refine: bool = True) -> dict[str, Any]:
     run = ROOT / "branches" / "data" / f"{name}_high"
     if not (run / "graph.json").exists():
         return {"model": name, "missing": str(run)}
@@ -144,6 +241,13 @@ def measure_model(name: str, beating_every: int) -> dict[str, Any]:
         stable = np.array([r["n_unstable"] == 0 for r in rows])
         best = branch_maximum(p, v)
         best_stable = branch_maximum(p, v, stable) if stable.any() else None
+        if refine and br.kind == "relative_periodic_orbit" and step == 1:
+            vals = {i: r["deflection"] for i, r in enumerate(rows)}
+            if best is not None and best.get("max_err") is not None:
+                best["refined"] = refine_maximum(model, br, best["index"], vals, br.param)
+            if best_stable is not None and best_stable.get("max_err") is None:
+                best_stable["at_stability_end"] = value_at_special(
+                    model, g, bid, br, best_stable["index"], br.param)
         if best is not None:
             r = rows[best["index"]]
             best.update({k: r[k] for k in ("mean_offset", "drift", "ratio", "phase")})
@@ -201,6 +305,8 @@ def main() -> None:
                     help="folder for the figures (default: a temporary folder)")
     ap.add_argument("--beating-every", type=int, default=5,
                     help="measure every k-th point of the planar beating branches (a check)")
+    ap.add_argument("--no-refine", action="store_true",
+                    help="no orbits solved between the stored points (maximum from them only)")
     args = ap.parse_args()
     out = args.out or Path(tempfile.mkdtemp(prefix="tip_deflection_"))
     out.mkdir(parents=True, exist_ok=True)
@@ -210,7 +316,7 @@ def main() -> None:
           "mean offset at max | drift/period at max | minor/major swing |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for name in args.models:
-        res = measure_model(name, args.beating_every)
+        res = measure_model(name, args.beating_every, not args.no_refine)
         if "missing" in res:
             print(f"| {name} | no stored run | | | | | | | | | | | | |")
             continue
@@ -229,6 +335,22 @@ def main() -> None:
                   f"{m['n_unstable']} | {m['mean_offset']:.4f} | {m['drift']:.3g} | "
                   f"{m['ratio']:.3f} |", flush=True)
         results.append(res)
+    print("\n| model | branch | refined maximum | ± (value) | at | ± (location) | orbits solved | "
+          "stable part ends at | deflection there |\n|---|---|---|---|---|---|---|---|---|")
+    for res in results:
+        for b in res["branches"]:
+            m, ms = b["maximum"], b["maximum_stable"]
+            rf = (m or {}).get("refined")
+            se = (ms or {}).get("at_stability_end")
+            if not rf and not se:
+                continue
+            print(f"| {res['model']} | {b['id']} {b['name']} | "
+                  f"{_fmt(rf['max'] if rf else None, '.5f')} | "
+                  f"{_fmt(rf['max_err'] if rf else None, '.1e')} | "
+                  f"{_fmt(rf['p_max'] if rf else None, '.6g')} | "
+                  f"{_fmt(rf['p_err'] if rf else None, '.2g')} | {rf['solves'] if rf else ''} | "
+                  f"{se['label'] + ' ' + format(se['p'], '.6g') if se else ''} | "
+                  f"{_fmt(se['deflection'] if se else None, '.5f')} |", flush=True)
     summary = []
     for res in results:
         for b in res["branches"]:
@@ -243,6 +365,8 @@ def main() -> None:
                 "p_max_stable": ms["p_max"] if ms else None,
                 "p_err_stable": ms["p_err"] if ms else None,
                 "max_refinement_in_period": b["max_refinement"],
+                "refined": (m or {}).get("refined"),
+                "stable_end": (ms or {}).get("at_stability_end"),
                 "last_session": last, "ratio_to_last": (m["max"] / last[0]) if last else None,
                 "last_session_stable": lst,
                 "ratio_to_last_stable": (ms["max"] / lst[0]) if (lst and ms) else None,
