@@ -160,3 +160,31 @@ def test_stored_bent_beating_deflects_and_beating_does_not(tip_ff_high) -> None:
     assert db.value > 0.05  # bent-beating: a clear out-of-plane tip swing
     assert db.ratio < 0.9   # with a beating plane
     assert d0.value < 1e-10
+
+
+def test_drift_angle_of_a_stored_drifting_orbit_makes_it_periodic() -> None:
+    # tip SF's drifting branch (QP3, ~1.6 rad per period): the engine's drift
+    # theta, converted by the model's own rotation symmetry, is the physical
+    # angle: removing it from the lab-frame tip path closes it, and equals
+    # turning every state back by the symmetry (exp(theta t/T L) u(t)).
+    from contfil.app.spec import load_spec
+    from contfil.app.study import build_model
+    from contfil.models.filament.deflection import orbit_samples
+    from contfil.store.run_store import load_run_graph
+
+    run = ROOT / "branches" / "data" / "tip_sf_high"
+    if not (run / "graph.json").exists():
+        pytest.skip("no stored tip_sf_high run")
+    model = build_model(load_spec(ROOT / "branches" / "tip_sf_high.toml")).model
+    pt = load_run_graph(run).branch("B2").points[-1]
+    T, theta = float(pt.extra["period"]), float(pt.extra["drift"])
+    s = orbit_samples(model, pt.u, pt.params, T, theta, steps=400)
+    assert abs(abs(s.drift) - abs(theta)) < 1e-9 and abs(s.drift) > 1.0
+    lab = s.tips
+    assert np.linalg.norm(lab[-1] - lab[0]) > 0.1  # the lab path does not close
+    co = remove_drift(lab, s.times, T, s.drift)
+    assert np.linalg.norm(co[-1] - co[0]) < 1e-9
+    sym = model.symmetries.continuous[0]
+    for k in (0, 97, 250, 400):
+        back = model.centreline(sym.act(theta * s.times[k] / T, s.states[k]))[-1]
+        np.testing.assert_allclose(co[k], back, atol=1e-10)
