@@ -9,6 +9,9 @@ and, per model,
 - draws the leading Floquet multipliers along every cycle branch (moduli of
   the four largest nontrivial ones, and the argument of the leading one) to
   ``docs/figures/high_<model>_multipliers.png``;
+- draws the paper's figure of beating's leading multipliers at high
+  actuation, one panel per model (beating only) to
+  ``docs/figures/high_beating_multipliers.png``;
 - prints a markdown table of the branches (kind, parameter span, points,
   unstable-multiplier counts along it, end reason) and of every special point
   with its error estimate (the bracket the localisation ended on, its
@@ -110,6 +113,42 @@ def multiplier_figure(g: BranchGraph, title: str, path: Path) -> Path:
     return path
 
 
+def beating_multiplier_panel(graphs: dict[str, BranchGraph], path: Path) -> Path:
+    """The paper's figure of beating's leading Floquet multipliers at high
+    actuation: one panel per model, |mu| of the four leading nontrivial
+    multipliers of the beating branch (B0) against the parameter, with
+    beating's special points marked (stable: all inside the unit circle)."""
+    n = len(graphs)
+    fig, axes = plt.subplots(n, 1, figsize=(6.6, 2.3 * n), squeeze=False)
+    for ax, (model, g) in zip(axes[:, 0], graphs.items(), strict=True):
+        bids = [b for b in g.branch_ids() if g.branch(b).kind == "periodic_orbit"]
+        if not bids:
+            continue
+        br = g.branch(bids[0])
+        ps = np.array([pt.p for pt in br.points])
+        M = np.abs(np.array([leading_multipliers(pt) for pt in br.points]))
+        for j in range(M.shape[1]):
+            ax.plot(ps, M[:, j], ".-" if j == 0 else ".", ms=3, lw=0.6,
+                    color=f"C{j}", label=f"|μ{j + 1}|")
+        ax.axhline(1.0, color="k", lw=0.7)
+        for sid in g.special_points:
+            sp = g.special_points[sid]
+            if bids[0] in g.branches_at(sid):
+                ax.axvline(sp.point.p, color="k", lw=0.5, ls=":")
+                ax.annotate(g.label(sid), (sp.point.p, 1.0), fontsize=6, xytext=(2, 3),
+                            textcoords="offset points")
+        ax.set_yscale("log")
+        ax.set_ylabel("|μ|")
+        ax.set_xlabel(br.param)
+        ax.set_title(f"{model}: beating ({bids[0]}), leading nontrivial Floquet multipliers",
+                     fontsize=9)
+        ax.legend(fontsize=6, frameon=False, ncol=4, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
 def diagram_figure(g: BranchGraph, title: str, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.6, 4.6))
     bifurcation_diagram(g, "mean_bending_energy", ax=ax)
@@ -194,6 +233,11 @@ def main() -> None:
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     results = [r for m in args.models if (r := report(m, args.out)) is not None]
+    graphs = {m: load_run_graph(ROOT / "branches" / "data" / f"{m}_high") for m in args.models
+              if (ROOT / "branches" / "data" / f"{m}_high" / "graph.json").exists()}
+    if graphs:
+        panel = beating_multiplier_panel(graphs, args.out / "high_beating_multipliers.png")
+        results.append({"beating_multiplier_panel": str(panel)})
     print(json.dumps({"high_actuation": results}, default=str))
 
 

@@ -20,10 +20,18 @@ def branch_snapshots(
     n_frames: int = 12,
     ax: Axes | None = None,
 ) -> Axes:
-    """The state at point ``index`` of branch ``bid``, drawn by ``model.draw_state``."""
+    """The state at point ``index`` of branch ``bid``, drawn by ``model.draw_state``.
+
+    The point's parameter vector goes to the hook as ``extra["params"]``, so
+    a model can draw a periodic orbit over its period (the filament does:
+    snapshots coloured by ``t/T``, shadows on the base plane, tip path).
+    """
     pt = graph.point(bid, index)
     kind = graph.branch(bid).kind
-    ax = model.draw_state(pt.u, kind, pt.extra, ax=ax, n_frames=n_frames)
+    extra = dict(pt.extra)
+    if getattr(pt, "params", None) is not None:
+        extra["params"] = pt.params
+    ax = model.draw_state(pt.u, kind, extra, ax=ax, n_frames=n_frames)
     ax.set_title(f"{bid} ({kind.replace('_', ' ')}), {graph.branch(bid).param} = {pt.p:.6g}")
     return ax
 
