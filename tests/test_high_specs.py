@@ -37,3 +37,84 @@ def test_high_spec_starts_from_stable_beating_at_the_top_of_the_stored_run(path:
     np.testing.assert_allclose(sub.embed(seed.x0[: seed.problem.dim]), pt.u, atol=1e-14)
     assert seed.x0[-1] == pt.extra["period"]
     assert seed.direction == 1 and spec.explorer["depth"] >= 1
+
+
+# --- tip SF beyond the first window (issue 12): the planar folds, beating
+# with Radau past b1 = 2272, QP3 to its end. Read-only over the stored runs.
+
+TIP_SF_MORE = ["tip_sf_planar", "tip_sf_high_planar", "tip_sf_high2", "tip_sf_high_qp3"]
+
+
+@pytest.mark.parametrize("name", TIP_SF_MORE)
+def test_tip_sf_follow_up_specs_load_and_report_the_bending_energy(name: str) -> None:
+    from contfil.app.study import known_observables
+
+    spec = load_spec(ROOT / "branches" / f"{name}.toml")
+    info = build_model(spec)
+    seed = root_seed(spec, info)
+    lo, hi = spec.continuation["range"]
+    assert lo <= seed.p0 <= hi
+    # the ordinate of the diagram, read at the model state (a planar started
+    # cycle's unknowns are the state and the period)
+    assert "bending_energy" in known_observables(info, seed)
+    if "start" in seed.info:
+        # beating (a planar cycle), or QP3 (a drifting orbit) for the QP3 spec
+        want = "relative_periodic_orbit" if name.endswith("qp3") else "periodic_orbit"
+        assert seed.kind == want
+
+
+def _folds(run: str) -> tuple[object, list[object]]:
+    g = load_run_graph(ROOT / "branches" / "data" / run)
+    br = g.branch("B0")
+    folds = [g.special_point(s) for s in g.special_points_on("B0")]
+    return br, [sp for sp in folds if sp.kind == "cycle_fold"]
+
+
+def test_planar_tip_sf_has_beating_inter_beating_and_buckled_beating_joined_by_two_folds() -> None:
+    br, folds = _folds("tip_sf_high_planar")
+    assert br.kind == "periodic_orbit"
+    lpc1, lpc2 = folds[0], folds[1]
+    assert lpc1.point.p > lpc2.point.p
+    p = np.array([pt.p for pt in br.points])
+    nu = np.array([pt.n_unstable for pt in br.points])
+    i1, i2 = lpc1.index, lpc2.index
+    # beating: stable up to the first fold, where it is annihilated
+    assert np.all(nu[: i1 + 1] == 0) and np.all(np.diff(p[: i1 + 1]) > 0)
+    # the turning point, to the fold's localisation error (~2e-7 in b1: the
+    # zero of the tangent's p-component is bracketed in arclength)
+    assert p[i1] <= lpc1.point.p + 1e-6 and p[i1 + 1] <= lpc1.point.p + 1e-6
+    # inter-beating: the way back down to the second fold, unstable
+    assert np.all(nu[i1 + 1: i2 + 1] >= 1) and p[i2 + 1] >= lpc2.point.p - 1e-6
+    # buckled-beating: from the second fold up to the window's end, stable there
+    assert p[-1] == br.points[-1].p == 2600.0 and nu[-1] == 0
+    # three coexisting orbits between the folds
+    mid = 0.5 * (lpc1.point.p + lpc2.point.p)
+    assert int(np.sum(np.diff(np.sign(p - mid)) != 0)) == 3
+    # at a fold of cycles a second multiplier sits at +1 beside the trivial one
+    for sp in (lpc1, lpc2):
+        mu = np.asarray(sp.point.eigenvalues)
+        assert np.sum(np.abs(mu - 1.0) < 1e-3) >= 2
+
+
+def test_3d_tip_sf_beating_has_the_planar_folds_and_the_pitchforks_of_both_states() -> None:
+    br3, folds3 = _folds("tip_sf_high2")
+    _, folds2 = _folds("tip_sf_high_planar")
+    # the cycle lies in the planar subspace: the planar model's folds, to the
+    # localisation tolerance (the same integrator and resolution)
+    for a, b in zip(folds3[:2], folds2[:2], strict=True):
+        assert abs(a.point.p - b.point.p) < 1e-6
+    g = load_run_graph(ROOT / "branches" / "data" / "tip_sf_high2")
+    bpc = [g.special_point(s) for s in g.special_points_on("B0")
+           if g.special_point(s).kind == "cycle_branch_point"]
+    # out-of-plane pitchforks: two of beating below the first fold, its merge,
+    # one on inter-beating, and on buckled-beating beyond the second fold
+    lpc1, lpc2 = folds3[0], folds3[1]
+    on_beating = [sp for sp in bpc if sp.index < lpc1.index]
+    on_inter = [sp for sp in bpc if lpc1.index <= sp.index < lpc2.index]
+    on_buckled = [sp for sp in bpc if sp.index >= lpc2.index]
+    assert len(on_beating) == 3 and len(on_inter) >= 1 and len(on_buckled) >= 1
+    assert all(sp.data.get("event") == "subspace_breaking" for sp in bpc)
+    # no branch point of the cycle system itself at the folds (the spurious
+    # BPC of the last session's run, at LPC2)
+    assert not any(abs(sp.point.p - lpc2.point.p) < 1e-3 for sp in bpc)
+    assert br3.points[-1].n_unstable == 0

@@ -102,7 +102,11 @@ def known_observables(info: ModelInfo, seed: Seed) -> list[str]:
     obs = getattr(model, "observables", None)
     if obs is not None:
         try:
-            values = obs(np.asarray(seed.x0, dtype=float), seed.problem.params_at(seed.p0))
+            # the model's state at the seed (a cycle's unknowns also hold
+            # the period, a subspace cycle's only the subspace coordinates)
+            state = getattr(seed.problem, "state", None)
+            u = state(np.asarray(seed.x0, dtype=float)) if callable(state) else seed.x0
+            values = obs(np.asarray(u, dtype=float), seed.problem.params_at(seed.p0))
         except (ContfilError, ValueError, ArithmeticError, np.linalg.LinAlgError):
             values = {}
         names |= {str(k) for k, v in dict(values).items() if np.ndim(v) == 0}
