@@ -72,7 +72,7 @@ def test_flow_failing_at_every_step_size_raises_a_typed_step_failure() -> None:
     assert run.stop_reason == "error"
 
 
-def _parallel_branches_run(max_angle: float) -> Continuation:
+def _parallel_branches_run(max_angle: float, ds_min: float = 1e-6) -> Continuation:
     """Two branches of ``[x - p, y (y - s(p))]`` with ``s = 0.4 + 8 p^2``:
     the parent ``y = 0`` and the daughter ``y = s(p)``. At ``p = 0`` both
     have the tangent ``(1, 0, 1)``, so the tangent test cannot tell them
@@ -82,7 +82,7 @@ def _parallel_branches_run(max_angle: float) -> Continuation:
         return np.array([u[0] - p[0], u[1] * (u[1] - 0.4 - 8.0 * p[0] ** 2)])
 
     m = FunctionModel(f, dim=2, params={"p": 0.0})
-    s = ContinuationSettings(ds=0.3, ds_max=0.3, p_max=1.0, max_points=60,
+    s = ContinuationSettings(ds=0.3, ds_max=0.3, ds_min=ds_min, p_max=1.0, max_points=60,
                              max_angle=max_angle, detect_events=False,
                              compute_stability=False)
     run = Continuation(EquilibriumProblem(m, "p"), np.array([0.0, 0.4]), 0.0, s)
@@ -107,6 +107,15 @@ def test_without_the_angle_tests_the_same_run_jumps() -> None:
     run = _parallel_branches_run(max_angle=np.pi / 2)
     assert run.stats["steps_rejected"] == 0
     assert any(abs(pt.u[1]) < 1e-9 for pt in run.branch.points[1:])
+
+
+def test_a_jump_at_ds_min_stops_the_run_instead_of_joining_the_branches() -> None:
+    # with no room to shrink (ds_min = ds) the guarded step cannot be halved:
+    # the run must stop with a clear StepFailure, not accept the jump onto the
+    # parent (before the fix the angle tests were skipped at ds_min)
+    with pytest.raises(StepFailure, match=r"cannot be reduced") as info:
+        _parallel_branches_run(max_angle=0.5, ds_min=0.3)
+    assert info.value.cause in ("secant_turn", "tangent_turn")
 
 
 def test_non_finite_step_failure_is_both_typed_errors() -> None:

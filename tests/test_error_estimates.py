@@ -223,3 +223,21 @@ def test_collocation_cycle_branch_point_location_estimate():
     assert "p_error_failed" not in bp.data
     assert abs(bp.data["p_error"]) < 1e-7
     assert bp.data["error_order"] == 8
+
+
+def test_multiple_shooting_points_carry_the_period_error_of_the_refined_segments() -> None:
+    # the multiple-shooting textbook cycle has a closed-form period: the
+    # estimate (fine - coarse) must be minus the true error, to Richardson's
+    # factor 1 - 2^-5 for the fifth-order default flow
+    import test_multiple_shooting_periodic as ms
+
+    model, _ = ms._model(1e6)
+    pb = ms.MultipleShootingProblem(model, "a", segments=6, steps=ms.STEPS)
+    x0 = pb.initial_guess(ms._on_orbit(), ms.T0, ms.A)
+    br = Continuation(pb, x0, ms.A, ContinuationSettings(
+        ds=0.1, ds_max=0.15, max_points=3, p_max=2.0, error_estimates="points")).run()
+    pt = br.points[-1]
+    true = pt.extra["period"] - ms._period(pt.p)
+    assert abs(true) > 1e-12  # resolved above round-off
+    assert -pt.accuracy["period_error"] / true == pytest.approx(1 - 2.0 ** -5, rel=0.05)
+    assert pt.accuracy["error_order"] == 5.0
