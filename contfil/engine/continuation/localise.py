@@ -11,17 +11,21 @@ to a crossing branch near a branch point; the Hermite error is
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from contfil.engine.branch import Point, SpecialPoint
 from contfil.engine.continuation.corrector import PseudoArclength
-from contfil.engine.continuation.error_estimates import add_point_errors, location_error
+from contfil.engine.continuation.error_estimates import add_point_errors, refined
+from contfil.engine.continuation.settings import ContinuationSettings
 from contfil.engine.events.base import Event, EventContext
+from contfil.engine.problems.base import Problem
 from contfil.errors import ContfilError
 
 Array = NDArray[np.float64]
@@ -222,3 +226,55 @@ class Localiser:
             # for a problem that cannot refine)
             data.update(location_error(self.pa.problem, self.settings, ev, j, r0, r1, pt.p))
         return float(sm), SpecialPoint(kind, pt, -1, data)
+
+
+def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
+                   r0: Any, r1: Any, p_coarse: float) -> dict[str, Any]:
+    """``p_error``: the event ``ev`` (crossing ``j``) located again on the
+    refined problem between the bracket ends ``r0``, ``r1`` (accepted points
+    of the coarse run, :class:`~contfil.engine.continuation.localise.Accepted`)
+    minus ``p_coarse``. Returns ``{}`` when ``pb`` cannot refine, else
+    ``p_error`` (``None`` with ``p_error_failed`` saying why) and
+    ``p_error_time``."""
+    t0 = time.perf_counter()
+    fine = refined(pb)
+    if fine is None:
+        return {}
+    sf = dataclasses.replace(s, error_estimates="off")
+    pa = PseudoArclength(fine, sf)
+    out: dict[str, Any] = {"p_error": None}
+    try:
+        XA = np.append(pb.onto_refined(r0.ctx.x, fine), r0.ctx.p)
+        XB = np.append(pb.onto_refined(r1.ctx.x, fine), r1.ctx.p)
+        chord = XB - XA
+        c = pa.w * chord
+        if not np.any(c):
+            raise ContfilError("the bracket ends coincide")
+        ends = []
+        for X in (XA, XB):
+            Xf, info = pa.solve(X, c, float(c @ X))
+            if not info.converged:
+                raise ContfilError(f"fine bracket end: {info.reason}")
+            ends.append(Xf)
+        tau = pa.unit(ends[1] - ends[0])
+        ctxs = [pa.context(X, tau) for X in ends]
+
+        def make(ctx: Any, t: float, e: int) -> Point:
+            return Point(u=np.asarray(fine.state(ctx.x), dtype=float), p=ctx.p,
+                         params=fine.params_at(ctx.p), kind=fine.kind)
+
+        loc = Localiser(pa, make)
+        got = loc.localise(ev, j, Accepted(ends[0], ctxs[0], r0.point),
+                           Accepted(ends[1], ctxs[1], r1.point))
+        if got is None:
+            raise ContfilError("no crossing of the fine test function in the coarse bracket")
+        sp = got[1]
+        out["p_error"] = float(sp.point.p) - float(p_coarse)
+        out["p_fine_localisation"] = sp.data.get("localisation")
+    except (ContfilError, np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
+        out["p_error_failed"] = " ".join(str(exc).split())[:200] or type(exc).__name__
+    order = getattr(fine, "discretisation_order", None)
+    if order:
+        out["error_order"] = int(order)
+    out["p_error_time"] = time.perf_counter() - t0
+    return out
