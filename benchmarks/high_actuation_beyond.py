@@ -98,6 +98,8 @@ def main() -> None:
           f"reasons {ev['reasons']}; Lyapunov {ev.get('lyapunov')} ± {ev.get('lyapunov_error')}",
           flush=True)
     if args.store:
+        # re-read: another classification may have stored its state meanwhile
+        g = load_run_graph(run)
         sid = g.add_state(res.label, br.param, args.p, ev,
                           born_from=args.born_from or args.branch,
                           index=None if args.born_from else k)
