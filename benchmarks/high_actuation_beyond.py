@@ -15,6 +15,12 @@ Usage::
     OPENBLAS_NUM_THREADS=1 python benchmarks/high_actuation_beyond.py \\
         --model dis_ff --branch B1 --p 220 [--born-from STABILITY_CHANGE2] [--store]
 
+Options: ``--spec``/``--run`` take another study and its stored run (default
+``branches/<model>_high.toml`` and ``branches/data/<model>_high/``, e.g.
+the Radau studies ``branches/tip_ff_high_radau.toml``); ``--seed`` the
+random push (a class that changes with the seed is not settled: rerun
+longer); ``--steps`` the BDF2 steps per period of the starting orbit.
+
 Prints the label, its evidence and one JSON line.
 """
 
@@ -49,22 +55,29 @@ def main() -> None:
                     help="Lyapunov maps of one period each (0: none)")
     ap.add_argument("--born-from", default=None, help="special-point label for the graph")
     ap.add_argument("--store", action="store_true", help="add the state to the stored graph")
+    ap.add_argument("--spec", type=Path, default=None,
+                    help="study spec (default branches/<model>_high.toml)")
+    ap.add_argument("--run", type=Path, default=None,
+                    help="stored run (default branches/data/<spec name>/)")
+    ap.add_argument("--seed", type=int, default=5, help="seed of the out-of-plane push")
+    ap.add_argument("--steps", type=int, default=400, help="BDF2 steps per period")
     args = ap.parse_args()
-    run = ROOT / "branches" / "data" / f"{args.model}_high"
-    model = build_model(load_spec(ROOT / "branches" / f"{args.model}_high.toml")).model
+    spec_path = args.spec or ROOT / "branches" / f"{args.model}_high.toml"
+    run = args.run or spec_path.parent / "data" / spec_path.stem
+    model = build_model(load_spec(spec_path)).model
     g = load_run_graph(run)
     br = g.branch(args.branch)
     k = int(np.argmin([abs(pt.p - args.p) for pt in br.points]))
     pt = br.points[k]
     T = float(pt.extra["period"])
-    steps = 400
+    steps = int(args.steps)
     dt = T / steps
     params = np.asarray(pt.params, dtype=float).copy()
     ip = list(model.param_names).index(br.param)
     params[ip] = args.p
     # a small out-of-plane push, so that a planar orbit is not kept planar by symmetry
     (sub,) = model.symmetries.invariant_subspaces.values()
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(args.seed)
     v = rng.standard_normal(model.dim)
     w = v - np.asarray(sub.embed(np.asarray(sub.project(v))))
     u0 = np.asarray(pt.u, dtype=float) + 1e-4 * w / np.linalg.norm(w)
@@ -77,13 +90,16 @@ def main() -> None:
     wall = time.perf_counter() - t0
     ev = node["evidence"]
     ev.update({"start_branch": args.branch, "start_index": k, "start_p": float(pt.p),
-               "wall_s": wall, "period_of_start_orbit": T})
+               "wall_s": wall, "period_of_start_orbit": T, "seed": args.seed,
+               "steps_per_period": steps, "run": str(run)})
     out = {"model": args.model, "p": args.p, "label": res.label, "wall_s": round(wall, 1),
            "evidence": ev}
     print(f"{args.model} at {br.param} = {args.p}: {res.label} ({wall:.0f} s); "
           f"reasons {ev['reasons']}; Lyapunov {ev.get('lyapunov')} ± {ev.get('lyapunov_error')}",
           flush=True)
     if args.store:
+        # re-read: another classification may have stored its state meanwhile
+        g = load_run_graph(run)
         sid = g.add_state(res.label, br.param, args.p, ev,
                           born_from=args.born_from or args.branch,
                           index=None if args.born_from else k)

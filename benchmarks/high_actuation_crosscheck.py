@@ -28,10 +28,25 @@ just above (``p_fold + dp``: no orbit, the state leaves it). The measure is
 the distance of the state, once per period, to the stored orbit's closest
 sample (so a phase shift does not count).
 
+A torus crossing (``--pair LABEL``, any special point of a stored run whose
+critical multiplier is a complex pair, e.g. a torus of bent-beating or the
+second pair of beating): the orbit is re-solved, with the run's own
+shooting problem and integrator, at ``p* - dp`` and ``p* + dp``; at each the
+Floquet pair nearest the stored critical multiplier and its eigenvector are
+computed, the orbit is pushed along ``Re v`` (relative amplitude
+``--eps``) and iterated, period by period, with the same flow (the orbit
+is periodic for it to the Newton tolerance, so the deviation is the linear
+response and nothing forces it). The deviation's coordinates in the pair's
+plane (least squares on ``Re v``, ``Im v``) grow by ``|μ|`` per period: the
+fitted factor must lie below 1 just below the crossing and above 1 just
+above it, and equal the computed ``|μ|``.
+
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/high_actuation_crosscheck.py \\
         [--models dis_ff ...] [--periods 60]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/high_actuation_crosscheck.py \\
+        --spec branches/dis_ff_high_b1radau.toml --pair NS1 [--dp 0.05] [--periods 40]
 
 Prints a markdown table and one JSON line.
 """
@@ -51,6 +66,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from contfil.app.spec import load_spec  # noqa: E402
 from contfil.app.study import build_model  # noqa: E402
+from contfil.explore.start import stored_start  # noqa: E402
 from contfil.models.filament.longrun import LongRun  # noqa: E402
 from contfil.store.run_store import load_run_graph  # noqa: E402
 
@@ -237,11 +253,96 @@ def check_model(name: str, periods: int) -> list[dict[str, Any]]:
     return rows
 
 
+def _newton(pb: Any, x: np.ndarray, p: float, tol: float = 1e-10) -> np.ndarray:
+    """The orbit at ``p`` from ``x`` (Newton on the shooting system)."""
+    for _ in range(12):
+        r = pb.residual(x, p)
+        if float(np.max(np.abs(r))) <= tol:
+            return x
+        x = x - np.linalg.solve(pb.jacobian(x, p), r)
+    raise RuntimeError(f"no orbit at p = {p}: residual {np.max(np.abs(r)):.1e}")
+
+
+def pair_growth(spec_path: Path, run: Path | None, label: str, dp: float, periods: int,
+                eps: float) -> list[dict[str, Any]]:
+    """Growth per period of a push along the crossing pair's Floquet vector,
+    just below and just above the special point ``label`` (see the module
+    docstring, "A torus crossing")."""
+    spec = load_spec(spec_path)
+    model = build_model(spec).model
+    run = run or Path(spec_path).parent / "data" / Path(spec_path).stem
+    g = load_run_graph(run)
+    sid = next(s for s in g.special_points if g.label(s) == label)
+    sp = g.special_points[sid]
+    bid = g.branches_at(sid)[0]
+    pstar = float(sp.point.p)
+    mu_star = complex(sp.data["multiplier"])
+    seed, _ = stored_start(run, model, branch=bid, point=pstar, subspace="auto",
+                           p_range=None)
+    pb = seed.problem
+    u = np.asarray(sp.point.u, dtype=float)
+    tail = [float(sp.point.extra[k]) for k in ("period", "drift") if k in sp.point.extra]
+    x_star = np.concatenate([u if pb.subspace is None else
+                             np.asarray(pb.subspace.project(u), dtype=float), tail])
+    pb.set_reference(x_star[:pb.dim], pstar)
+    ops = pb.full_ops if pb.subspace is not None else pb.ops
+    rows = []
+    for side, p in (("below", pstar - dp), ("above", pstar + dp)):
+        t0 = time.perf_counter()
+        x = _newton(pb, x_star.copy(), p)
+        st = pb.stability(x, p)
+        vals = np.asarray(st.values, dtype=complex)
+        cand = np.flatnonzero(~np.asarray(st.trivial, dtype=bool))
+        k = int(cand[np.argmin(np.abs(vals[cand] - mu_star))])
+        mu = vals[k]
+        v = np.asarray(st.vectors[:, k], dtype=complex)
+        B = np.column_stack([v.real, v.imag])
+        U0 = np.asarray(pb.state(x), dtype=float)
+        T = float(x[pb.dim])
+        G = pb.G(float(x[pb.dim + 1])) if hasattr(pb, "G") and x.size > pb.dim + 1 else None
+        q = pb.params_at(p)
+        w = eps * np.linalg.norm(U0) * v.real / np.linalg.norm(v.real)
+        z = []
+        for _ in range(periods + 1):
+            c = np.linalg.lstsq(B, w, rcond=None)[0]
+            z.append(float(np.hypot(c[0], c[1])))
+            un = np.asarray(ops.flow(U0 + w, q, T), dtype=float)
+            un = un if G is None else G @ un
+            w = un - U0
+        kk = np.arange(len(z))
+        factor = float(np.exp(np.polyfit(kk, np.log(z), 1)[0]))
+        row = {"special": label, "p_special": pstar, "side": side, "p": p,
+               "mu": [mu.real, mu.imag], "abs_mu": float(abs(mu)), "factor": factor,
+               "periods": periods, "eps": eps, "z_first": z[0], "z_last": z[-1],
+               "n_unstable": st.n_unstable, "wall_s": time.perf_counter() - t0}
+        rows.append(row)
+        print(f"| {label} ({sp.kind}, {pstar:.5f}) | {side} | {p:.5f} | {st.n_unstable} | "
+              f"{abs(mu):.6f} | {factor:.6f} | {periods} | "
+              f"{'decays' if factor < 1 else 'grows'} |", flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", nargs="*", default=list(MODELS), choices=MODELS)
     ap.add_argument("--periods", type=int, default=60)
+    ap.add_argument("--spec", type=Path, default=None, help="spec of the run (with --pair)")
+    ap.add_argument("--run", type=Path, default=None,
+                    help="run directory (default: branches/data/<spec name>)")
+    ap.add_argument("--pair", default=None,
+                    help="special-point label: pair-growth check across that crossing")
+    ap.add_argument("--dp", type=float, default=0.05, help="distance from the crossing")
+    ap.add_argument("--eps", type=float, default=1e-6, help="relative push")
     args = ap.parse_args()
+    if args.pair is not None:
+        if args.spec is None:
+            ap.error("--pair needs --spec")
+        print("| crossing | side | parameter | unstable | computed |μ| of the pair | "
+              "measured factor per period | periods | push along the pair |\n"
+              "|---|---|---|---|---|---|---|---|", flush=True)
+        rows = pair_growth(args.spec, args.run, args.pair, args.dp, args.periods, args.eps)
+        print(json.dumps({"pair_growth": rows}))
+        return
     print("| model | bifurcation | side | parameter | unstable (stored) | stored max |μ| | "
           "measured factor per period | periods | out-of-plane part |\n"
           "|---|---|---|---|---|---|---|---|---|", flush=True)

@@ -326,15 +326,21 @@ class PeriodicOrbitProblem(Problem):
             stalled = (J is not None and J["res"] > self.exact_below
                        and res > 0.5 * J["res"])
             if (J is not None and J["exact"] and J["res"] <= self.exact_below
-                    and res <= self.exact_below):
-                # a last iteration below the tolerance of an exact sweep: the
-                # sweep stands for this point too (no update from a secant of
-                # round-off size)
-                A, rows = J["A"], rec[2]  # type: ignore[index]
+                    and res <= self.exact_below
+                    and float(np.max(np.abs(X - J["X"])))
+                    <= self.exact_below * (1.0 + float(np.max(np.abs(X))))):
+                # a last iteration below the tolerance of an exact sweep, that
+                # moved the point by no more than that tolerance: the sweep
+                # stands for this point too (no update from a secant of
+                # round-off size). A converged point elsewhere on the branch
+                # (an event localiser's trial point from a converged Hermite
+                # guess) gets its own sweep: its multipliers are the events'
+                # test functions. ``X`` stays the sweep's point, so adoptions
+                # do not chain away from it (docs/decisions.md 26).
+                A = J["A"]
                 u, T = self.split(x)
                 self.ops.adopt_sweep(u, self.params_at(p), T)
-                self._J = J = {"key": key, "X": X, "rows": rows, "res": res, "A": A,
-                               "exact": True}
+                self._J = J = {**J, "key": key}
                 out = A.copy()
                 out[self.dim :] = self._phase_rows()
                 return out
