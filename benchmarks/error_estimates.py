@@ -144,12 +144,9 @@ def filament_case() -> dict[str, Any]:
     from contfil.models.filament.cycles import FixedStepFlow
 
     scene = ROOT / "branches" / "tip_sf.toml"
-    d = json.loads((ROOT / "docs/figures/filament_tip_sf_beating.json").read_text())
-    pts = sorted(d["points"], key=lambda q: q["p"])
-    lo = max((q for q in pts if q["p"] <= B1), key=lambda q: q["p"])
-    hi = min((q for q in pts if q["p"] >= B1), key=lambda q: q["p"])
-    w = (B1 - lo["p"]) / (hi["p"] - lo["p"])
-    x0 = (1 - w) * np.array(lo["x"]) + w * np.array(hi["x"])
+    from work_precision import stored_beating_guess
+
+    x0 = stored_beating_guess(B1)
 
     def problem(model: Any) -> PeriodicOrbitProblem:
         return PeriodicOrbitProblem(model, "b1", np.array([B1]), subspace="planar_xz",

@@ -76,7 +76,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy.linalg as sla  # noqa: E402
-from work_precision import RadauFlow  # noqa: E402
+from work_precision import RadauFlow, stored_beating_guess  # noqa: E402
 
 from contfil.engine.continuation.driver import Continuation, ContinuationSettings  # noqa: E402
 from contfil.engine.linalg.newton import newton_dense  # noqa: E402
@@ -148,13 +148,7 @@ def solve_at(m: FilamentModel, x0: np.ndarray, p: float, steps: int) -> np.ndarr
 
 def start_orbit(m: FilamentModel) -> np.ndarray:
     """Beating at b1 = 716.5 from the stored branch (interpolated, then solved)."""
-    d = json.loads((ROOT / "docs/figures/filament_tip_sf_beating.json").read_text())
-    pts = sorted(d["points"], key=lambda q: q["p"])
-    lo = max((q for q in pts if q["p"] <= P0), key=lambda q: q["p"])
-    hi = min((q for q in pts if q["p"] >= P0), key=lambda q: q["p"])
-    w = (P0 - lo["p"]) / (hi["p"] - lo["p"])
-    x0 = (1 - w) * np.array(lo["x"]) + w * np.array(hi["x"])
-    return solve_at(m, x0, P0, STEPS)
+    return solve_at(m, stored_beating_guess(P0), P0, STEPS)
 
 
 def one_point(m: FilamentModel, x0: np.ndarray, cls: type, repeat: int = 2,

@@ -143,14 +143,21 @@ def solve_orbit(m: FilamentModel, x0: np.ndarray, p: float, fo: FixedStepFlow,
     return x, complex(st.values[np.argmin(d)]), c
 
 
-def beating_start(m: FilamentModel, p: float = P_BEAT) -> np.ndarray:
-    """Planar beating at ``p`` from the stored branch, solved with BDF2 T/400."""
+def stored_beating_guess(p: float) -> np.ndarray:
+    """tip SF planar beating at ``p``, linearly interpolated between the two
+    stored points around it (docs/figures/filament_tip_sf_beating.json): a
+    guess to be solved, shared by the orbit benchmarks."""
     d = json.loads((ROOT / "docs/figures/filament_tip_sf_beating.json").read_text())
     pts = sorted(d["points"], key=lambda q: q["p"])
     lo = max((q for q in pts if q["p"] <= p), key=lambda q: q["p"])
     hi = min((q for q in pts if q["p"] >= p), key=lambda q: q["p"])
     w = (p - lo["p"]) / (hi["p"] - lo["p"])
-    x0 = (1 - w) * np.array(lo["x"]) + w * np.array(hi["x"])
+    return (1 - w) * np.array(lo["x"]) + w * np.array(hi["x"])
+
+
+def beating_start(m: FilamentModel, p: float = P_BEAT) -> np.ndarray:
+    """Planar beating at ``p`` from the stored branch, solved with BDF2 T/400."""
+    x0 = stored_beating_guess(p)
     return solve_orbit(m, x0, p, FixedStepFlow(m, 400), "planar_xz")[0]
 
 
