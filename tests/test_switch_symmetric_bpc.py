@@ -104,6 +104,10 @@ def test_switch_at_drift_pitchfork_gives_drifting_orbits(pitchfork, pure_rotatio
     start = cycles_leaving_subspace(pb, sp, eps=0.1)
     assert isinstance(start.problem, RelativePeriodicOrbitProblem)
     assert start.info["side"] == 1.0  # supercritical: drifting orbits for μ > 0
+    if pure_rotation:  # no off-trivial part: taken from the deflated monodromy
+        assert start.info["critical_from"] == "deflated_monodromy"
+        assert start.info["critical_mu"] == pytest.approx(1.0, abs=1e-6)
+        assert start.info["jordan_coupling"] > 0.9  # the Jordan block: 2πρ0/√(1 + 4π²ρ0²)
     new = start.run(ContinuationSettings(ds=0.02, ds_max=0.04, max_points=4, p_max=0.2,
                                          detect_events=False))
     assert len(new.points) >= 4

@@ -585,6 +585,7 @@ def cycles_from_branch_point(
     # at the point itself is not determined, see BranchPointEvent)
     t1 = sp.data.get("tangent_in", sp.data.get("tangent"))
     abe: dict[str, Any] = {}
+    crit: dict[str, Any] = {}
     colloc = isinstance(problem, CollocationProblem)
     ref = x_bp if colloc else x_bp[: problem.dim]
     if t2 is not None and len(t2) == n + 1:
@@ -594,7 +595,7 @@ def cycles_from_branch_point(
             _, d, abe = branch_point_tangents(problem, x_bp, p_bp, np.asarray(t1, dtype=float))
             dx = d[:n]
     elif sp.data.get("v_re") is not None and colloc:
-        v = _off_trivial(problem, x_bp, p_bp, np.asarray(sp.data["v_re"], dtype=float))
+        v = _off_trivial(problem, x_bp, p_bp, np.asarray(sp.data["v_re"], dtype=float), crit)
         dx = np.concatenate([_along_orbit(problem, x_bp, p_bp, v).ravel(), [0.0]])
     elif sp.data.get("v_re") is not None:
         v = np.asarray(sp.data["v_re"], dtype=float)
@@ -602,7 +603,7 @@ def cycles_from_branch_point(
             raise ContfilError(
                 "symmetry breaking out of an invariant subspace: use cycles_leaving_subspace"
             )
-        v = _off_trivial(problem, x_bp, p_bp, v)
+        v = _off_trivial(problem, x_bp, p_bp, v, crit)
         if isinstance(problem, MultipleShootingProblem):
             # the perturbation carried along the segments
             u0, T = problem.split(x_bp)
@@ -617,12 +618,13 @@ def cycles_from_branch_point(
     x1, p1, info = solve_with_amplitude(problem, x_bp + eps * dx, p_bp, x_bp, dx, eps)
     return _start(problem, (x1, p1), np.concatenate([x_bp, [p_bp]]), {
         "from": sp.kind, "p_star": p_bp, "eps": eps, "side": float(np.sign(p1 - p_bp)),
-        "newton_iterations": info["iterations"], **{f"abe_{k}": v for k, v in abe.items()}})
+        "newton_iterations": info["iterations"], **crit,
+        **{f"abe_{k}": v for k, v in abe.items()}})
 
 
 
 def _off_trivial(problem: PeriodicOrbitProblem | CollocationProblem, x: Array, p: float,
-                 v: Array) -> Array:
+                 v: Array, report: dict[str, Any] | None = None) -> Array:
     """``v`` without its part along the trivial directions ``f(U)``, ``L U`` (unit).
 
     Near μ = 1 the Floquet eigenvector of a multiplier crossing +1 is
@@ -634,13 +636,18 @@ def _off_trivial(problem: PeriodicOrbitProblem | CollocationProblem, x: Array, p
     bifurcating direction is the part orthogonal to them. When that part is
     lost to round-off (``v`` inside the trivial span to 1e-8), it is
     recomputed from the monodromy deflated of the trivial span
-    (:func:`_deflated_critical`).
+    (:func:`_deflated_critical`); its ``info`` then goes to ``report`` as
+    ``critical_mu``, ``jordan_coupling``.
     """
     E = np.column_stack(problem.trivial_directions(x, p))
     Q = _orth(E)
     w = v - Q @ (Q.T @ v)
     if np.linalg.norm(w) <= 1e-8 * np.linalg.norm(v):
-        return _deflated_critical(problem, x, p, Q)[0]
+        y, info = _deflated_critical(problem, x, p, Q)
+        if report is not None:
+            report.update({"critical_from": "deflated_monodromy", "critical_mu": info["mu"],
+                           "jordan_coupling": info["jordan_coupling"]})
+        return y
     return _unit_real(w)
 
 
@@ -808,7 +815,8 @@ def cycles_leaving_subspace(
     v = np.asarray(sp.data["v_re"], dtype=float)
     if v.size != U.size:
         raise ContfilError(f"critical eigenvector has {v.size} entries, the full state {U.size}")
-    v = side * _off_trivial(problem, x_r, p_bp, v)
+    crit: dict[str, Any] = {}
+    v = side * _off_trivial(problem, x_r, p_bp, v, crit)
     model = problem.model
     kw: dict[str, Any] = {"steps": problem.steps, "nev": problem.nev,
                           "floquet_tol": problem.floquet_tol,
@@ -830,7 +838,8 @@ def cycles_leaving_subspace(
         raise ConvergenceError(f"branch leaving subspace {problem.subspace.name!r}: {exc}") \
             from exc
     out = {"from": sp.kind, "p_star": p_bp, "eps": eps, "side": float(np.sign(p1 - p_bp)),
-           "newton_iterations": info["iterations"], "left_subspace": problem.subspace.name}
+           "newton_iterations": info["iterations"], "left_subspace": problem.subspace.name,
+           **crit}
     if isinstance(new, RelativePeriodicOrbitProblem):
         out["drift"] = float(x1[new.dim + 1])
     return _start(new, (x1, p1), np.concatenate([x_star, [p_bp]]), out)
