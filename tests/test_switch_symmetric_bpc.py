@@ -70,9 +70,9 @@ def breathing_model() -> FunctionModel:
 @pytest.fixture(scope="module")
 def pitchfork():
     pb = PeriodicOrbitProblem(breathing_model(), "mu", steps=80, subspace="plane", nev=4)
-    mu0 = -0.1
+    mu0 = -0.04
     x0 = np.array([2.0 + np.sqrt(1.0 + mu0), 0.0, 2 * np.pi])
-    s = ContinuationSettings(ds=0.06, ds_max=0.08, max_points=4, p_max=0.1, event_tol=1e-10)
+    s = ContinuationSettings(ds=0.06, ds_max=0.08, max_points=2, p_max=0.1, event_tol=1e-10)
     br = Continuation(pb, x0, mu0, s).run()
     sp = next(sp for sp in br.special_points if sp.kind == CYCLE_BRANCH_POINT)
     return pb, sp
