@@ -585,6 +585,7 @@ def cycles_from_branch_point(
     # at the point itself is not determined, see BranchPointEvent)
     t1 = sp.data.get("tangent_in", sp.data.get("tangent"))
     abe: dict[str, Any] = {}
+    crit: dict[str, Any] = {}
     colloc = isinstance(problem, CollocationProblem)
     ref = x_bp if colloc else x_bp[: problem.dim]
     if t2 is not None and len(t2) == n + 1:
@@ -594,7 +595,7 @@ def cycles_from_branch_point(
             _, d, abe = branch_point_tangents(problem, x_bp, p_bp, np.asarray(t1, dtype=float))
             dx = d[:n]
     elif sp.data.get("v_re") is not None and colloc:
-        v = _off_trivial(problem, x_bp, p_bp, np.asarray(sp.data["v_re"], dtype=float))
+        v = _off_trivial(problem, x_bp, p_bp, np.asarray(sp.data["v_re"], dtype=float), crit)
         dx = np.concatenate([_along_orbit(problem, x_bp, p_bp, v).ravel(), [0.0]])
     elif sp.data.get("v_re") is not None:
         v = np.asarray(sp.data["v_re"], dtype=float)
@@ -602,7 +603,7 @@ def cycles_from_branch_point(
             raise ContfilError(
                 "symmetry breaking out of an invariant subspace: use cycles_leaving_subspace"
             )
-        v = _off_trivial(problem, x_bp, p_bp, v)
+        v = _off_trivial(problem, x_bp, p_bp, v, crit)
         if isinstance(problem, MultipleShootingProblem):
             # the perturbation carried along the segments
             u0, T = problem.split(x_bp)
@@ -617,11 +618,13 @@ def cycles_from_branch_point(
     x1, p1, info = solve_with_amplitude(problem, x_bp + eps * dx, p_bp, x_bp, dx, eps)
     return _start(problem, (x1, p1), np.concatenate([x_bp, [p_bp]]), {
         "from": sp.kind, "p_star": p_bp, "eps": eps, "side": float(np.sign(p1 - p_bp)),
-        "newton_iterations": info["iterations"], **{f"abe_{k}": v for k, v in abe.items()}})
+        "newton_iterations": info["iterations"], **crit,
+        **{f"abe_{k}": v for k, v in abe.items()}})
 
 
 
-def _off_trivial(problem: PeriodicOrbitProblem, x: Array, p: float, v: Array) -> Array:
+def _off_trivial(problem: PeriodicOrbitProblem | CollocationProblem, x: Array, p: float,
+                 v: Array, report: dict[str, Any] | None = None) -> Array:
     """``v`` without its part along the trivial directions ``f(U)``, ``L U`` (unit).
 
     Near μ = 1 the Floquet eigenvector of a multiplier crossing +1 is
@@ -630,14 +633,120 @@ def _off_trivial(problem: PeriodicOrbitProblem, x: Array, p: float, v: Array) ->
     ``v + c e/(μ - 1)``, which tends to ``e`` at the crossing (the
     filament's beating pitchfork gives one parallel to ``L U`` to 1e-11).
     Seeding along ``e`` only shifts the old orbit in time or angle; the
-    bifurcating direction is the part orthogonal to them.
+    bifurcating direction is the part orthogonal to them. When that part is
+    lost to round-off (``v`` inside the trivial span to 1e-8), it is
+    recomputed from the monodromy deflated of the trivial span
+    (:func:`_deflated_critical`); its ``info`` then goes to ``report`` as
+    ``critical_mu``, ``jordan_coupling``.
     """
     E = np.column_stack(problem.trivial_directions(x, p))
-    Q, _ = np.linalg.qr(E)
+    Q = _orth(E)
     w = v - Q @ (Q.T @ v)
     if np.linalg.norm(w) <= 1e-8 * np.linalg.norm(v):
-        raise ContfilError("critical eigenvector lies in the trivial directions (f(U), L U)")
+        y, info = _deflated_critical(problem, x, p, Q)
+        if report is not None:
+            report.update({"critical_from": "deflated_monodromy", "critical_mu": info["mu"],
+                           "jordan_coupling": info["jordan_coupling"]})
+        return y
     return _unit_real(w)
+
+
+def _orth(E: Array, tol: float = 1e-10) -> Array:
+    """Orthonormal basis of the column span of ``E`` (numerically zero columns
+    dropped: ``L U`` vanishes on an orbit fixed by the symmetry)."""
+    U, s, _ = np.linalg.svd(E, full_matrices=False)
+    return U[:, s > tol * max(float(s[0]) if s.size else 0.0, 1e-300)]
+
+
+def _monodromy_apply(problem: PeriodicOrbitProblem | CollocationProblem, x: Array,
+                     p: float) -> tuple[Any, int, Any]:
+    """``(v -> M v, n, V -> M V or None)`` for the full model's monodromy at ``x``
+    (with the drift map of a relative orbit; a collocation problem's through its
+    transfer blocks)."""
+    if isinstance(problem, CollocationProblem):
+        B = problem.transfer_blocks(x, p)
+
+        def apply_c(v: Array) -> Array:
+            w = np.asarray(v, dtype=float)
+            for Bj in B:
+                w = Bj @ w
+            return w
+
+        return apply_c, problem.dim, lambda V: apply_c(V)
+    U = problem.state(x)
+    T = float(x[problem.dim])
+    q = problem.params_at(p)
+    ops = problem.full_ops
+    G = problem._drift_map(x)
+
+    def apply_s(v: Array) -> Array:
+        w = ops.jvp(U, q, T, v)
+        return w if G is None else G @ w
+
+    block = None
+    if ops.has_sweep:
+        def block(V: Array) -> Array:
+            W = ops.tangent_block(U, q, T, V)
+            return W if G is None else G @ W
+    return apply_s, U.size, block
+
+
+DENSE_DEFLATION = 600  # state size up to which the deflated monodromy is formed densely
+
+
+def _deflated_critical(problem: PeriodicOrbitProblem | CollocationProblem, x: Array, p: float,
+                       Q: Array) -> tuple[Array, dict[str, float]]:
+    """Critical direction from the monodromy deflated of the trivial span ``Q``.
+
+    With ``P = I - Q Qᵀ`` and ``span Q`` invariant, ``M`` is block triangular
+    in ``[Q, P]``: ``M = [[R, Qᵀ M P], [0, K]]`` with ``K = P M P`` on the
+    complement. The multiplier crossing +1 is an eigenvalue of ``K``; its
+    eigenvector ``y`` (orthogonal to ``Q``) is the off-trivial part of
+    ``M``'s eigenvector ``y + Q z``, ``(μ - R) z = Qᵀ M y``, and it stays
+    defined when ``μ`` meets the trivial 1: when ``Qᵀ M y ≠ 0`` there (a
+    Jordan block with a trivial direction, the *drift pitchfork* of an orbit
+    with a continuous symmetry), ``M`` has no eigenvector off the trivial
+    span and ``y`` is the generalised eigenvector, ``(M - I) y ∈ span Q``.
+    Either way ``y`` is the seed: its trivial part only shifts the orbit.
+
+    Returns ``(y, info)`` with the multiplier ``mu`` of ``K`` nearest 1 and
+    ``jordan_coupling = |Qᵀ M y|`` (O(1) for a drift pitchfork).
+    """
+    apply, n, block = _monodromy_apply(problem, x, p)
+    r = Q.shape[1]
+    if n - r <= 0:
+        raise ContfilError("no direction off the trivial span (f(U), L U)")
+    if n <= DENSE_DEFLATION:
+        full = np.linalg.svd(np.eye(n) - Q @ Q.T)[0]
+        C = full[:, : n - r]
+        MC = block(C) if block is not None else np.column_stack([apply(c) for c in C.T])
+        K = C.T @ MC
+        vals, Y = np.linalg.eig(K)
+        k = int(np.argmin(np.abs(vals - 1.0)))
+        y = C @ Y[:, k]
+        MY = MC @ Y[:, k]
+    else:
+        from contfil.engine.linalg.floquet import arnoldi_eigs
+
+        def mvp(v: Array) -> Array:
+            w = apply(v)
+            return w - Q @ (Q.T @ w)
+
+        start = np.random.default_rng(0).standard_normal(n)
+        vals, Y, _ = arnoldi_eigs(mvp, n, nev=max(int(getattr(problem, "nev", 6)), 6),
+                                  v0=start - Q @ (Q.T @ start), space_dim=n - r)
+        k = int(np.argmin(np.abs(vals - 1.0)))
+        y = Y[:, k]
+        MY = apply(y.real) + 1j * apply(y.imag)
+    mu = complex(vals[k])
+    if abs(mu.imag) > 1e-8 * max(abs(mu), 1.0):
+        raise ContfilError(f"deflated critical multiplier {mu:.6g} is not real")
+    ph = np.exp(-1j * np.angle(y[int(np.argmax(np.abs(y)))]))
+    y, MY = np.real(y * ph), np.real(MY * ph)
+    y = y - Q @ (Q.T @ y)
+    coupling = float(np.linalg.norm(Q.T @ MY)) / max(float(np.linalg.norm(MY)), 1e-300)
+    info = {"mu": float(mu.real), "jordan_coupling": coupling}
+    return _unit_real(y), info
 
 
 def _cycle_problem_like(parent: PeriodicOrbitProblem, relative: bool, base: Array,
@@ -706,7 +815,8 @@ def cycles_leaving_subspace(
     v = np.asarray(sp.data["v_re"], dtype=float)
     if v.size != U.size:
         raise ContfilError(f"critical eigenvector has {v.size} entries, the full state {U.size}")
-    v = side * _off_trivial(problem, x_r, p_bp, v)
+    crit: dict[str, Any] = {}
+    v = side * _off_trivial(problem, x_r, p_bp, v, crit)
     model = problem.model
     kw: dict[str, Any] = {"steps": problem.steps, "nev": problem.nev,
                           "floquet_tol": problem.floquet_tol,
@@ -728,7 +838,8 @@ def cycles_leaving_subspace(
         raise ConvergenceError(f"branch leaving subspace {problem.subspace.name!r}: {exc}") \
             from exc
     out = {"from": sp.kind, "p_star": p_bp, "eps": eps, "side": float(np.sign(p1 - p_bp)),
-           "newton_iterations": info["iterations"], "left_subspace": problem.subspace.name}
+           "newton_iterations": info["iterations"], "left_subspace": problem.subspace.name,
+           **crit}
     if isinstance(new, RelativePeriodicOrbitProblem):
         out["drift"] = float(x1[new.dim + 1])
     return _start(new, (x1, p1), np.concatenate([x_star, [p_bp]]), out)
