@@ -29,14 +29,28 @@ centreline (:func:`~contfil.analysis.angular.local_handedness`). Then
 Usage::
 
     python benchmarks/qp2_coils.py [--b1 1000] [--periods 600] [--transient 200]
+    python benchmarks/qp2_coils.py --from-high --b1 2000 [--out-dir docs/figures]
 
-Output: ``docs/figures/qp2_coils.json``, ``docs/figures/qp2_coils.png``.
+``--from-high`` starts instead from the stored high-actuation beating branch
+(``branches/data/dis_sf_high/``, b1 330-5000; torus points NS1 = 655.365 and
+NS2 = 3657.72) at its point nearest ``--b1``, with ``T = T_point * b1_point / b1``
+and the same out-of-plane push. It also reports the reversal *rates* (per
+unit time) with an error estimate (the rates of the record's two halves),
+the out-of-plane RMS of both halves (growing/sustained for QP2, decaying
+back to beating below NS1 or above NS2), and twice the difference of the
+classifier's two base frequencies, against which the reversal rate is
+compared.
+
+Output: ``<out-dir>/<tag>.json`` and ``.png``; ``--out-dir`` defaults to a
+fresh temporary folder (figures go to ``docs/figures`` only when asked), the
+tag to ``qp2_coils`` (``qp2_coils_b<b1>`` with ``--from-high``).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import tempfile
 import time
 from pathlib import Path
 from typing import Any
@@ -68,6 +82,32 @@ def _moving_mean(x: np.ndarray, w: int) -> np.ndarray:
     return np.where(den > 0.2 * w, num / np.maximum(den, 1), np.nan)
 
 
+def _rate(times: np.ndarray, t0: float, t1: float) -> dict[str, float]:
+    """Reversal rate over [t0, t1] and over its two halves (error: their difference)."""
+    tm = 0.5 * (t0 + t1)
+    n_all = int(np.sum((times >= t0) & (times <= t1)))
+    r1 = float(np.sum((times >= t0) & (times < tm))) / (tm - t0)
+    r2 = float(np.sum((times >= tm) & (times <= t1))) / (t1 - tm)
+    return {"count": n_all, "rate": n_all / (t1 - t0), "rate_first_half": r1,
+            "rate_second_half": r2, "rate_error": abs(r1 - r2)}
+
+
+def _start_from_high(model_b1: float, eps: float) -> tuple[Any, np.ndarray, float, float]:
+    """Model, pushed start state, period estimate and b1 of the stored point."""
+    from contfil.app.spec import load_spec
+    from contfil.app.study import build_model
+    from contfil.store.run_store import load_run_graph
+
+    model = build_model(load_spec(ROOT / "branches" / "dis_sf_high.toml")).model
+    br = load_run_graph(ROOT / "branches" / "data" / "dis_sf_high").branch("B0")
+    pt = min(br.points, key=lambda q: abs(q.p - model_b1))
+    U0 = np.asarray(pt.u, dtype=float).copy()
+    rng = np.random.default_rng(1)
+    U0[0::3] += eps * rng.standard_normal(U0[0::3].size)  # out of the x-z plane
+    T = float(pt.extra["period"]) * float(pt.p) / model_b1
+    return model, U0, T, float(pt.p)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--b1", type=float, default=1000.0)
@@ -79,16 +119,28 @@ def main() -> None:
     ap.add_argument("--eps", type=float, default=1e-2)
     ap.add_argument("--lyapunov-maps", type=int, default=0,
                     help="largest Lyapunov exponent over this many half-period maps")
+    ap.add_argument("--from-high", action="store_true",
+                    help="start from the stored dis SF high-actuation beating branch")
+    ap.add_argument("--out-dir", type=Path, default=None,
+                    help="output folder (default: a new temporary folder)")
+    ap.add_argument("--tag", default=None, help="output file stem")
     a = ap.parse_args()
     t0 = time.perf_counter()
-    model = FilamentModel(ROOT / "branches" / "dis_sf.toml")
-    d = json.loads((FIG / "filament_dis_sf_beating.json").read_text())
-    last = max((q for q in d["points"] if "x" in q), key=lambda q: q["p"])
-    x = np.asarray(last["x"], dtype=float)
-    T = float(x[-1]) * float(last["p"]) / a.b1
-    U0 = embed_planar(x[:-1])
-    rng = np.random.default_rng(1)
-    U0[0::3] += a.eps * rng.standard_normal(model.N - 1)  # out of the x-z plane
+    out_dir = a.out_dir or Path(tempfile.mkdtemp(prefix="qp2_coils_"))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tag = a.tag or (f"qp2_coils_b{a.b1:g}" if a.from_high else "qp2_coils")
+    start_b1 = None
+    if a.from_high:
+        model, U0, T, start_b1 = _start_from_high(a.b1, a.eps)
+    else:
+        model = FilamentModel(ROOT / "branches" / "dis_sf.toml")
+        d = json.loads((FIG / "filament_dis_sf_beating.json").read_text())
+        last = max((q for q in d["points"] if "x" in q), key=lambda q: q["p"])
+        x = np.asarray(last["x"], dtype=float)
+        T = float(x[-1]) * float(last["p"]) / a.b1
+        U0 = embed_planar(x[:-1])
+        rng = np.random.default_rng(1)
+        U0[0::3] += a.eps * rng.standard_normal(model.N - 1)  # out of the x-z plane
     p = np.array([a.b1])
     dt = T / a.per_period
     run = LongRun(model, U0, p, dt, a.sample_every)
@@ -150,6 +202,19 @@ def main() -> None:
     out_of_plane = float(np.sqrt(np.mean(states[:, 0::3] ** 2)))
     in_plane = float(np.sqrt(np.mean(states[:, 1::3] ** 2)))
     duration = float(ts[-1] - ts[0])
+    half = n // 2
+    oop_halves = [float(np.sqrt(np.mean(states[sl, 0::3] ** 2)))
+                  for sl in (slice(0, half), slice(half, n))]
+    rev_t = ts[rev.indices] if rev else np.empty(0)
+    bases = sorted(node["evidence"].get("bases") or [])
+    rates = {
+        "omega": _rate(rev_t, float(ts[0]), float(ts[-1])),
+        "handedness": _rate(ts[hrev.indices], float(ts[0]), float(ts[-1])),
+        "beating_frequency": 1.0 / T_meas,
+        "bases": bases,
+        "twice_base_difference": 2.0 * abs(bases[1] - bases[0]) if len(bases) >= 2 else None,
+        "out_of_plane_rms_halves": oop_halves,
+    }
     out: dict[str, Any] = {
         "b1": a.b1, "T_estimate": T, "dt": dt, "per_period": a.per_period,
         "periods": a.periods, "transient_periods": a.transient, "eps": a.eps,
@@ -174,6 +239,7 @@ def main() -> None:
             "exponent": lyap.exponent, "error": lyap.error, "maps": a.lyapunov_maps,
             "per_period": lyap.exponent * T_meas, "tail_spread": lyap.tail_spread},
         "wall_transient_s": t_tr, "wall_run_s": t_run,
+        "from_high": bool(a.from_high), "start_b1": start_b1, "rates": rates,
     }
     try:
         import matplotlib
@@ -197,15 +263,18 @@ def main() -> None:
         axs[2].set_ylabel("s / L (sign of torsion)")
         axs[2].set_xlabel("t")
         fig.tight_layout()
-        fig.savefig(FIG / "qp2_coils.png", dpi=80)
+        fig.savefig(out_dir / f"{tag}.png", dpi=80)
         plt.close(fig)
     except ImportError:
         pass
     out["wall_s"] = time.perf_counter() - t0
-    (FIG / "qp2_coils.json").write_text(json.dumps(out, indent=1))
-    print(json.dumps({"label": cls.label, "omega_reversals": out["omega_reversals"],
+    (out_dir / f"{tag}.json").write_text(json.dumps(out, indent=1))
+    print(json.dumps({"label": cls.label, "b1": a.b1, "omega_reversals": out["omega_reversals"],
                       "handedness_reversals": hrev.count, "out_of_plane": out_of_plane,
-                      "wall_s": round(out["wall_s"], 1)}))
+                      "omega_rate": rates["omega"]["rate"],
+                      "omega_rate_error": rates["omega"]["rate_error"],
+                      "twice_base_difference": rates["twice_base_difference"],
+                      "out_dir": str(out_dir), "wall_s": round(out["wall_s"], 1)}))
 
 
 if __name__ == "__main__":
