@@ -184,7 +184,7 @@ def test_spec_key_reaches_the_engine_settings():
 
     base = '[model]\nname = "z2_pitchfork"\n[continuation]\nparameter = "mu"\n' \
            'range = [-1.0, 1.0]\n'
-    assert engine_settings(loads_spec(base)).error_estimates == "points"
+    assert engine_settings(loads_spec(base)).error_estimates == "special"
     for mode in ("off", "special", "points", "full"):
         spec = loads_spec(base + f'error_estimates = "{mode}"\n')
         assert spec.continuation["error_estimates"] == mode

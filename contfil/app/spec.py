@@ -200,7 +200,7 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "max_newton": (_integer(1), 10, False, "Newton iterations per step"),
         "stability": (_boolean, True, False, "compute eigenvalues/multipliers at points"),
         "both_directions": (_boolean, False, False, "continue the root branch both ways"),
-        "error_estimates": (_choice(*ERROR_ESTIMATE_MODES), "points", False,
+        "error_estimates": (_choice(*ERROR_ESTIMATE_MODES), "special", False,
                             "error estimates from two resolutions (docs/accuracy.md): off, "
                             "special (special points: p_error), points (also every point's "
                             "period and multiplier errors), full (also the observables)"),

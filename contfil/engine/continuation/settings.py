@@ -92,8 +92,8 @@ class ContinuationSettings:
     error_estimates:
         Error estimates from two resolutions (:mod:`.error_estimates`; only
         for problems that can refine their discretisation): ``"off"``;
-        ``"special"`` (special points: ``p_error`` of the location and the
-        point estimates there); ``"points"`` (default: also every point's
+        ``"special"`` (default; special points: ``p_error`` of the location
+        and the point estimates there); ``"points"`` (also every point's
         ``period_error`` etc. and ``multiplier_error``); ``"full"`` (also
         the observables' ``error_<name>``). Stored in ``Point.accuracy``
         and ``SpecialPoint.data``.
@@ -124,7 +124,7 @@ class ContinuationSettings:
     eig_vectors: bool = False
     compute_observables: bool = True
     krylov: dict[str, Any] = field(default_factory=dict)
-    error_estimates: str = "points"
+    error_estimates: str = "special"
     verbose: bool = False
 
     @classmethod
