@@ -130,6 +130,53 @@ sys.exit(cli.main(["show", "x"]))
     assert r.stderr == "contfil: interrupted\n"
 
 
+def test_interrupt_while_numba_compiles_waits_for_the_compiler(tmp_path: Path) -> None:
+    """SIGINT that lands while numba compiles a kernel is raised only once the
+    compilation is over (an exception unwinding through llvmlite can leave it
+    half-built; the crash harness once saw exit -11): the kernel finishes
+    compiling, then the run stops with 'interrupted', 130."""
+    code = r'''
+import os, signal, sys, threading, time
+from numba import njit
+from contfil.app import cli
+from contfil.explore.stop import in_compiler
+
+def watch(main_id):
+    # Send SIGINT at the first moment the main thread is inside numba.
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 30:
+        if in_compiler(sys._current_frames().get(main_id)):
+            os.kill(os.getpid(), signal.SIGINT)
+            return
+        time.sleep(0.0005)
+
+def compile_then_wait(args):
+    threading.Thread(target=watch, args=(threading.main_thread().ident,), daemon=True).start()
+
+    @njit(cache=False)
+    def kernel(n):
+        s = 0.0
+        for i in range(n):
+            s += (i % 7) * 0.5
+        return s
+
+    kernel(10)
+    print("compiled", flush=True)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 20:  # the deferred interrupt lands here
+        sum(range(1000))
+    return 0
+
+cli.COMMANDS["show"] = compile_then_wait
+sys.exit(cli.main(["show", "x"]))
+'''
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 130, r.stderr
+    assert r.stdout == "compiled\n", (r.stdout, r.stderr)
+    assert r.stderr == "contfil: interrupted\n"
+
+
 def test_failure_while_stopping_is_not_recorded_as_branch_end(tmp_path: Path) -> None:
     """A solver failure caused by an interrupt must not end the segment in
     the log (a resume would then stop that branch for good)."""
