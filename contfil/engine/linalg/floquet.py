@@ -34,6 +34,7 @@ from contfil.engine.linalg.krylov import arnoldi
 from contfil.engine.problems.base import Stability
 
 Array = NDArray[np.float64]
+CArray = NDArray[np.complex128]
 
 __all__ = ["arnoldi_eigs", "flag_trivial", "floquet_from_blocks", "floquet_multipliers"]
 
@@ -455,49 +456,57 @@ def floquet_from_blocks(
     if labels is not None and len(labels) != len(blocks):
         raise ValueError(f"floquet_from_blocks: {len(labels)} labels for {len(blocks)} blocks")
     spans = _block_trivial_spans(blocks, trivial_directions)
-    vals_l, vecs_l, res_l, triv_l, blk_l = [], [], [], [], []
-    tvals, defects = [], []
-    for b, ((M, B), Q) in enumerate(zip(blocks, spans, strict=True)):
+    parts = []
+    for (M, B), Q in zip(blocks, spans, strict=True):
         M = np.asarray(M, dtype=float)
         w, Y, triv, defect = _deflated_block(M, Q)
-        vals_l.append(w)
         X = np.asarray(B, dtype=float) @ Y
         X = X / np.linalg.norm(X, axis=0, keepdims=True)
-        vecs_l.append(X)
-        res_l.append(np.linalg.norm(M @ Y - Y * w[None, :], axis=0) / np.linalg.norm(Y, axis=0))
-        triv_l.append(triv)
-        blk_l.append(np.full(w.size, b))
-        tvals.append(w[triv])
-        defects.append(defect)
-    vals = np.concatenate(vals_l).astype(complex)
-    X = np.column_stack(vecs_l).astype(complex)
-    res = np.concatenate(res_l)
-    trivial = np.concatenate(triv_l)
-    blk = np.concatenate(blk_l)
+        res = np.linalg.norm(M @ Y - Y * w[None, :], axis=0) / np.linalg.norm(Y, axis=0)
+        parts.append((w, X, res, triv, defect))
+    return stability_from_parts(
+        parts, nev, period, labels,
+        info={"method": "monodromy",
+              "blocks": [int(np.asarray(M).shape[0]) for M, _ in blocks]},
+        ranks=[int(Q.shape[1]) for Q in spans])
+
+
+def stability_from_parts(
+    parts: Sequence[tuple[CArray, CArray, Array, Array, float]],
+    nev: int,
+    period: float | None,
+    labels: Sequence[str] | None,
+    info: dict[str, Any],
+    ranks: Sequence[int],
+) -> Stability:
+    """One :class:`Stability` from the multipliers of each block.
+
+    ``parts[b] = (values, unit vectors in full coordinates, residuals,
+    trivial mask, invariance defect of the trivial span)`` of block ``b``;
+    ``info`` holds the method's own entries (``method``, ``blocks``, ...),
+    ``ranks`` the trivial span's rank per block. Values are sorted leading
+    first; ``residual`` is the largest of the ``nev`` leading non-trivial ones.
+    """
+    vals = np.concatenate([p[0] for p in parts]).astype(complex)
+    X = np.column_stack([p[1] for p in parts]).astype(complex)
+    res = np.concatenate([p[2] for p in parts])
+    trivial = np.concatenate([p[3] for p in parts])
+    blk = np.concatenate([np.full(p[0].size, b) for b, p in enumerate(parts)])
     order = _sort_leading(vals)
     vals, X, res, trivial, blk = vals[order], X[:, order], res[order], trivial[order], blk[order]
-    tv = np.concatenate(tvals) if tvals else np.zeros(0, complex)
+    tv = np.concatenate([p[0][p[3]] for p in parts]) if parts else np.zeros(0, complex)
     tinfo = {
         "rank": int(tv.size),
         "method": "deflation",
-        "ranks": [int(Q.shape[1]) for Q in spans],
+        "ranks": [int(r) for r in ranks],
         "values": tv,
         "distance_from_one": float(np.max(np.abs(tv - 1.0))) if tv.size else float("nan"),
         # how far each block's trivial span is from invariant (time step, unconverged orbit)
-        "invariance_defect": defects,
+        "invariance_defect": [p[4] for p in parts],
     }
     lead = res[~trivial][: max(int(nev), 0)]
-    info: dict[str, Any] = {
-        "method": "monodromy",
-        "blocks": [int(np.asarray(M).shape[0]) for M, _ in blocks],
-        "block": blk,
-        "iterations": 0,
-        "operator_applications": 0,
-        "converged": True,
-        "ritz_change": 0.0,
-        "residuals": res,
-        "trivial_info": tinfo,
-    }
+    info = {**info, "block": blk, "iterations": 0, "operator_applications": 0,
+            "converged": True, "ritz_change": 0.0, "residuals": res, "trivial_info": tinfo}
     if labels is not None:
         info["block_label"] = np.array([str(labels[int(k)]) for k in blk])
     if period is not None and period > 0:

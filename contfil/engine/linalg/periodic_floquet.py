@@ -40,12 +40,11 @@ this reduces to for ``m = 1``).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.engine.linalg.floquet import _block_trivial_spans, _sort_leading
+from contfil.engine.linalg.floquet import _block_trivial_spans, _sort_leading, stability_from_parts
 from contfil.engine.problems.base import Stability
 
 Array = NDArray[np.float64]
@@ -238,53 +237,16 @@ def periodic_floquet(
         spans = [_block_trivial_spans(bases, list(D)) for D in directions]
     else:
         spans = [[np.zeros((np.asarray(B).shape[1], 0)) for _, B in block_sets]] * m
-    vals_l, vecs_l, res_l, triv_l, blk_l, tvals, defects, ranks = [], [], [], [], [], [], [], []
+    parts, ranks = [], []
     for b, (Ms, B) in enumerate(block_sets):
         Ms = [np.asarray(M, dtype=float) for M in Ms]
         w, Y, triv, res, defect, r = _deflated_cyclic(Ms, [sp[b] for sp in spans])
         Xf = np.asarray(B, dtype=float) @ Y
         Xf = Xf / np.maximum(np.linalg.norm(Xf, axis=0, keepdims=True), 1e-300)
-        vals_l.append(w)
-        vecs_l.append(Xf)
-        res_l.append(res)
-        triv_l.append(triv)
-        blk_l.append(np.full(w.size, b))
-        tvals.append(w[triv])
-        defects.append(defect)
+        parts.append((w, Xf, res, triv, defect))
         ranks.append(r)
-    vals = np.concatenate(vals_l).astype(complex)
-    X = np.column_stack(vecs_l).astype(complex)
-    res = np.concatenate(res_l)
-    trivial = np.concatenate(triv_l)
-    blk = np.concatenate(blk_l)
-    order = _sort_leading(vals)
-    vals, X, res, trivial, blk = vals[order], X[:, order], res[order], trivial[order], blk[order]
-    tv = np.concatenate(tvals) if tvals else np.zeros(0, complex)
-    tinfo = {
-        "rank": int(tv.size),
-        "method": "deflation",
-        "ranks": ranks,
-        "values": tv,
-        "distance_from_one": float(np.max(np.abs(tv - 1.0))) if tv.size else float("nan"),
-        "invariance_defect": defects,
-    }
-    lead = res[~trivial][: max(int(nev), 0)]
-    info: dict[str, Any] = {
-        "method": "cyclic",
-        "segments": m,
-        "blocks": [int(np.asarray(B).shape[1]) for _, B in block_sets],
-        "block": blk,
-        "iterations": 0,
-        "operator_applications": 0,
-        "converged": True,
-        "ritz_change": 0.0,
-        "residuals": res,
-        "trivial_info": tinfo,
-    }
-    if labels is not None:
-        info["block_label"] = np.array([str(labels[int(k)]) for k in blk])
-    if period is not None and period > 0:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            info["exponents"] = np.log(vals) / period
-    return Stability(values=vals, kind="multipliers", trivial=trivial, vectors=X,
-                     residual=float(np.max(lead)) if lead.size else 0.0, info=info)
+    return stability_from_parts(
+        parts, nev, period, labels,
+        info={"method": "cyclic", "segments": m,
+              "blocks": [int(np.asarray(B).shape[1]) for _, B in block_sets]},
+        ranks=ranks)
