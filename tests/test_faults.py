@@ -97,6 +97,15 @@ def test_interrupt_status_sees_through_numba_wrapping() -> None:
     assert _interrupt_status(ValueError("x"), stop) == 143
 
 
+def _run_as_show_command(code: str, command: str) -> subprocess.CompletedProcess:
+    """Run ``code`` in a fresh interpreter with its function ``command`` as
+    the CLI's ``show`` command, through ``cli.main`` (the signal handling
+    of a real run)."""
+    code += f'\ncli.COMMANDS["show"] = {command}\nsys.exit(cli.main(["show", "x"]))\n'
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=120)
+
+
 def test_interrupt_inside_numba_code_is_one_line(tmp_path: Path) -> None:
     """SIGTERM that lands while compiled code runs: 'interrupted', 143 (the
     handler's exception surfaces at the dispatcher, possibly wrapped)."""
@@ -120,12 +129,8 @@ def busy(args):
     for _ in range(20_000):  # ~1 ms calls: the signal lands in compiled code
         spin(x, 20_000)
     return 0
-
-cli.COMMANDS["show"] = busy
-sys.exit(cli.main(["show", "x"]))
 '''
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       timeout=120)
+    r = _run_as_show_command(code, "busy")
     assert r.returncode == 143, r.stderr
     assert r.stderr == "contfil: interrupted\n"
 
@@ -166,12 +171,8 @@ def compile_then_wait(args):
     while time.monotonic() - t0 < 20:  # the deferred interrupt lands here
         sum(range(1000))
     return 0
-
-cli.COMMANDS["show"] = compile_then_wait
-sys.exit(cli.main(["show", "x"]))
 '''
-    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                       timeout=120)
+    r = _run_as_show_command(code, "compile_then_wait")
     assert r.returncode == 130, r.stderr
     assert r.stdout == "compiled\n", (r.stdout, r.stderr)
     assert r.stderr == "contfil: interrupted\n"
