@@ -31,6 +31,17 @@ def test_good_spec_defaults_filled() -> None:
     assert c["range"] == (-1.0, 1.0) and c["ds"] == 0.05 and c["direction"] == 1
     assert c["ds_min"] == 1e-6 and c["ds_max"] == 0.1 and c["max_points"] == 200
     assert s.explorer["depth"] == 1 and s.output["plots"] is True
+    assert c["theta"] == 0.5
+
+
+def test_theta_reaches_the_arclength_weights() -> None:
+    from contfil.app.study import engine_settings
+    from contfil.engine.continuation.settings import arclength_weights
+
+    st = engine_settings(loads_spec(GOOD.replace("ds = 0.05", "ds = 0.05\ntheta = 0.99")))
+    assert st.theta == 0.99
+    w = arclength_weights(4, st.theta)
+    assert np.allclose(w, [0.99 / 4] * 4 + [0.01])
 
 
 @pytest.mark.parametrize(
@@ -50,6 +61,10 @@ def test_good_spec_defaults_filled() -> None:
         (GOOD.replace("range = [-1.0, 1.0]", "range = 3"), r"^continuation\.range: expected"),
         (GOOD.replace("range = [-1.0, 1.0]\n", ""), r"^continuation\.range: missing"),
         (GOOD.replace("ds = 0.05", "ds = 5.0"), r"^continuation\.ds: expected within"),
+        (GOOD.replace("ds = 0.05", "ds = 0.05\ntheta = 1.0"),
+         r"^continuation\.theta: expected a number in \(0, 1\), got 1\.0"),
+        (GOOD.replace("ds = 0.05", "ds = 0.05\ntheta = 0"),
+         r"^continuation\.theta: expected a pos"),
         (GOOD + "\n[explorer]\ndepth = 1.5\n", r"^explorer\.depth: expected an integer"),
         (GOOD + "\n[explorer]\nkinds = ['hopff']\n", r"^explorer\.kinds: unknown kind 'hopff'"),
         (GOOD + "\n[output]\nplots = 'yes'\n", r"^output\.plots: expected true or false"),

@@ -194,6 +194,10 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "ds_min": (_number(positive=True), 1e-6, False, "smallest step before giving up"),
         "ds_max": (_number(positive=True), 0.1, False, "largest step"),
         "max_points": (_integer(1), 200, False, "points per direction of a branch"),
+        "theta": (_number(positive=True), 0.5, False,
+                  "weight of the state in the arclength norm, in (0, 1): theta/n per "
+                  "unknown, 1 - theta for the parameter (near 1 when the parameter spans a "
+                  "wide range, so that folds are not hairpins in the norm)"),
         "tol": (_number(positive=True, minimum=MIN_TOL,
                         why=" (double precision cannot reach a smaller residual)"),
                 1e-10, False, "Newton tolerance (residual norm)"),
@@ -351,6 +355,8 @@ def parse_spec(doc: Mapping[str, Any], path: str | Path | None = None, text: str
     # [continuation] is required for `run`, optional for `simulate`.
     cont = _check_table("continuation", doc.get("continuation", {}),
                         required="continuation" in doc)
+    if not cont["theta"] < 1.0:
+        raise SpecError(f"continuation.theta: expected a number in (0, 1), got {cont['theta']}")
     if cont["ds_min"] > cont["ds_max"]:
         raise SpecError(
             f"continuation.ds_min: expected <= ds_max ({cont['ds_max']}), got {cont['ds_min']}")
