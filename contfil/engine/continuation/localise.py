@@ -228,6 +228,10 @@ class Localiser:
         return float(sm), SpecialPoint(kind, pt, -1, data)
 
 
+#: Widenings of the coarse bracket tried, in turn, by :func:`location_error`.
+LOCATION_WIDENING = (1.0, 4.0, 16.0, 64.0)
+
+
 def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
                    r0: Any, r1: Any, p_coarse: float) -> dict[str, Any]:
     """``p_error``: the event ``ev`` (crossing ``j``) located again on the
@@ -250,24 +254,35 @@ def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
         c = pa.w * chord
         if not np.any(c):
             raise ContfilError("the bracket ends coincide")
-        ends = []
-        for X in (XA, XB):
-            Xf, info = pa.solve(X, c, float(c @ X))
-            if not info.converged:
-                raise ContfilError(f"fine bracket end: {info.reason}")
-            ends.append(Xf)
-        tau = pa.unit(ends[1] - ends[0])
-        ctxs = [pa.context(X, tau) for X in ends]
 
         def make(ctx: Any, t: float, e: int) -> Point:
             return Point(u=np.asarray(fine.state(ctx.x), dtype=float), p=ctx.p,
                          params=fine.params_at(ctx.p), kind=fine.kind)
 
         loc = Localiser(pa, make)
-        got = loc.localise(ev, j, Accepted(ends[0], ctxs[0], r0.point),
-                           Accepted(ends[1], ctxs[1], r1.point))
+        mid = 0.5 * (XA + XB)
+        got = None
+        # The fine crossing may lie outside the coarse bracket: at a fold the
+        # steps shrink until the bracket is far narrower than the
+        # discretisation's shift of the fold. Widen it about its middle
+        # along the chord until the fine test changes sign.
+        for widen in LOCATION_WIDENING:
+            ends = []
+            for X in (mid - widen * (mid - XA), mid + widen * (XB - mid)):
+                Xf, info = pa.solve(X, c, float(c @ X))
+                if not info.converged:
+                    raise ContfilError(f"fine bracket end (widened {widen:g}x): {info.reason}")
+                ends.append(Xf)
+            tau = pa.unit(ends[1] - ends[0])
+            ctxs = [pa.context(X, tau) for X in ends]
+            got = loc.localise(ev, j, Accepted(ends[0], ctxs[0], r0.point),
+                               Accepted(ends[1], ctxs[1], r1.point))
+            if got is not None:
+                out["p_error_widening"] = float(widen)
+                break
         if got is None:
-            raise ContfilError("no crossing of the fine test function in the coarse bracket")
+            raise ContfilError("no crossing of the fine test function in the coarse bracket "
+                               f"widened up to {LOCATION_WIDENING[-1]:g}x")
         sp = got[1]
         out["p_error"] = float(sp.point.p) - float(p_coarse)
         out["p_fine_localisation"] = sp.data.get("localisation")
