@@ -45,6 +45,8 @@ from .radau_step import stage_blocks, stage_residual
 
 #: LAPACK ``dgetrf`` as numba binds it for ``np.linalg.inv`` (kind, m, n, a, lda, ipiv)
 _GETRF = _LAPACK().numba_xxgetrf(types.float64)
+#: LAPACK ``dgesv`` likewise (kind, n, nrhs, a, lda, ipiv, b, ldb): ``getrf`` + ``getrs``
+_GESV = _LAPACK().numba_xgesv(types.float64)
 _KIND = ord("d")
 # Reassociation vectorises the triangular solves' dot products; it changes
 # round-off only (Newton corrections and the tangent solve, far above it).
@@ -77,18 +79,31 @@ def lu_solve_t(A: np.ndarray, piv: np.ndarray, B: np.ndarray) -> None:
     """
     n = A.shape[0]
     k = B.shape[1]
-    for r in range(n):
-        for j in range(k):
-            acc = B[r, j]
+    if k == 1:  # dot products along the rows of A
+        for r in range(n):
+            acc = B[r, 0]
             for c in range(r):
-                acc -= A[r, c] * B[c, j]
-            B[r, j] = acc / A[r, r]
-    for r in range(n - 2, -1, -1):
-        for j in range(k):
-            acc = B[r, j]
+                acc -= A[r, c] * B[c, 0]
+            B[r, 0] = acc / A[r, r]
+        for r in range(n - 2, -1, -1):
+            acc = B[r, 0]
             for c in range(r + 1, n):
-                acc -= A[r, c] * B[c, j]
-            B[r, j] = acc
+                acc -= A[r, c] * B[c, 0]
+            B[r, 0] = acc
+    else:  # row updates, the right-hand sides innermost
+        for r in range(n):
+            for c in range(r):
+                arc = A[r, c]
+                for j in range(k):
+                    B[r, j] -= arc * B[c, j]
+            d = 1.0 / A[r, r]
+            for j in range(k):
+                B[r, j] *= d
+        for r in range(n - 2, -1, -1):
+            for c in range(r + 1, n):
+                arc = A[r, c]
+                for j in range(k):
+                    B[r, j] -= arc * B[c, j]
     for i in range(n - 1, -1, -1):
         p = piv[i] - 1
         if p != i:
@@ -136,32 +151,28 @@ def block_factor(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
     """
     s, nz = Jd.shape[0], Jd.shape[1]
     nu = K.shape[2]
-    for i in range(s):
-        if lu_factor_t(Jd[i], piv[i]) != 0:
-            return 1 + i
     for a in range(s * nu):
         for b in range(s * nu):
             Cap[a, b] = 0.0
         Cap[a, a] = 1.0
-    G = np.empty((nz, nu))
+    Gt = np.empty((nu, nz))
     for i in range(s):
-        # G = J_i^{-T} P^T, so G^T = P J_i^{-1}: the increment rows of J_i^{-1}
-        for r in range(nz):
-            for b in range(nu):
-                G[r, b] = 0.0
-        for b in range(nu):
-            G[b, b] = 1.0
-        lu_solve_tt(Jd[i], piv[i], G)
+        # getrf of J_i^T and, in the same LAPACK call, Gt = (J_i^{-T} P^T)^T =
+        # P J_i^{-1}: the increment rows of J_i^{-1} (Fortran view of Gt: P^T)
+        for a in range(nu):
+            for r in range(nz):
+                Gt[a, r] = 0.0
+            Gt[a, a] = 1.0
+        if _GESV(_KIND, nz, nu, Jd[i].ctypes, nz, piv[i].ctypes, Gt.ctypes, nz) != 0:
+            return 1 + i
         for j in range(s):
             if j == i:
                 continue
             w = W[i, j] / W[i, i]
-            for r in range(nz):
-                for a in range(nu):
-                    g = w * G[r, a]
-                    if g != 0.0:
-                        for b in range(nu):
-                            Cap[i * nu + a, j * nu + b] += g * K[j, r, b]
+            S = np.dot(Gt, K[j])
+            for a in range(nu):
+                for b in range(nu):
+                    Cap[i * nu + a, j * nu + b] += w * S[a, b]
     if lu_factor_t(Cap, cpiv) != 0:
         return s + 1
     return 0
