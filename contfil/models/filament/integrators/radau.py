@@ -37,6 +37,7 @@ Newton tolerance), as shooting needs.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -77,6 +78,20 @@ CHORD_MAX = 4
 FLOOR = 100.0
 #: A predictor with a smaller scaled residual is taken without trying the next.
 PREDICTOR_OK = 0.05
+
+
+@functools.lru_cache(maxsize=4)
+def _method(stages: int) -> tuple[Array, ...]:
+    """``(c, W = A^-1, Eu, El, eigenvalues, eigenvectors of W and their
+    inverse)`` of the ``stages``-stage method, built once per process (read only)."""
+    c, A = _kr.radau_tableau(stages)
+    W = np.linalg.inv(A)
+    Eu, El = _extrapolation(c)
+    lam, T = np.linalg.eig(W)
+    out = (c, W, Eu, El, lam, T, np.linalg.inv(T))
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def _extrapolation(c: Array) -> tuple[Array, Array]:
@@ -149,16 +164,13 @@ class RadauStepper:
         self.max_iter = int(max_iter)
         self.rate = float(rate)
         self.reuse = bool(reuse)
-        c, A = _kr.radau_tableau(int(stages))
+        c, self.W, self._Eu, self._El, lam, T, Ti = _method(int(stages))
         self.s = c.size
         self.c = c
-        self.W = np.linalg.inv(A)
-        self._Eu, self._El = _extrapolation(c)
         if newton not in ("simplified", "full"):
             raise ValueError(f"RadauStepper: newton must be 'simplified' or 'full', got {newton!r}")
         self.newton = newton
-        lam, T = np.linalg.eig(self.W)
-        self._lam, self._T, self._Ti = lam, T, np.linalg.inv(T)
+        self._lam, self._T, self._Ti = lam, T, Ti
         N = phys.N
         self._zmap, self._rmap = _maps(N, phys.planar)
         self._scales = _kr.stage_scales(self.dt, self.W, self.par, N)
