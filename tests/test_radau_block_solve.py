@@ -74,6 +74,11 @@ def test_block_solve_inverts_the_dense_stage_jacobian(dimension: str, block: str
     args = (Zf, st._q, st.dt, st.W, par, par, flags, zm, rm, st._scales, False)
     J = kr.stage_jacobian(*args)[0]
     blocks = kr.stage_blocks(*args)
+    # the Newton matrix's lean assembly is the same matrix
+    Jd, K = np.empty_like(blocks[0]), np.empty_like(blocks[1])
+    kr.newton_blocks(Zf, st._q, st.dt, st.W, par, flags, zm, rm, st._scales, Jd, K)
+    assert np.abs(Jd - blocks[0]).max() <= 1e-14 * np.abs(blocks[0]).max()
+    assert np.array_equal(K, blocks[1])
     nz = zm.size
     B = np.random.default_rng(3).standard_normal((st.s * nz, 5))
     X = radau._block_solver(blocks, st.W)(B.reshape(st.s, nz, 5)).reshape(st.s * nz, 5)

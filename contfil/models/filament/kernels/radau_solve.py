@@ -41,7 +41,7 @@ from numba.np.linalg import _LAPACK
 from .bdf2_residual import frames_at
 from .effects import P_DL
 from .geometry import positions, tangents
-from .radau_step import stage_blocks, stage_residual
+from .radau_step import newton_blocks, stage_residual
 
 #: LAPACK ``dgetrf`` as numba binds it for ``np.linalg.inv`` (kind, m, n, a, lda, ipiv)
 _GETRF = _LAPACK().numba_xxgetrf(types.float64)
@@ -329,8 +329,7 @@ def newton_step(
             return MAXITER, its, builds, res
         if not have:
             physical(Z, scales, zmap, Zf)
-            Jd, K, _, _, _, _, _ = stage_blocks(Zf, qk, dt, W, par, par, flags, zmap, rmap,
-                                                scales, False)
+            newton_blocks(Zf, qk, dt, W, par, flags, zmap, rmap, scales, Jd, K)
             builds += 1
             if block_factor(Jd, K, W, piv, Cap, cpiv) != 0:
                 return NONFINITE, its, builds, res

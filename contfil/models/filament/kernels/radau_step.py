@@ -34,10 +34,20 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .bdf2_residual import frames_at, full_unknowns, residual
-from .bdf2_tangent import INC_ANALYTIC, _step_system, reduced_counts
+from .bdf2_residual import C_G, frames_at, full_unknowns, residual, unpack_loads, velocities
+from .bdf2_tangent import (
+    INC_ANALYTIC,
+    _load_columns,
+    _reduced_block,
+    _segment_blocks,
+    _step_system,
+    dense_mobility,
+    reduced_counts,
+    residual_frame_jacobian,
+)
 from .effects import P_A, P_DL, P_ETA
 from .geometry import positions, tangents
+from .quaternion import dexp_inv_du
 
 
 def radau_tableau(s: int) -> tuple[np.ndarray, np.ndarray]:
@@ -249,6 +259,81 @@ def stage_blocks(
                 for b in range(nu):
                     Jth[i * nz + a, b] += w * AR[a, b]
     return Jd, K, Jth, c_dt, c_s, Bs[s - 1].copy(), Rs[s - 1].copy()
+
+
+@njit(cache=True)
+def newton_blocks(
+    Zf: np.ndarray,
+    qk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+    Jd: np.ndarray,
+    K: np.ndarray,
+) -> None:
+    """``Jd`` (s, nz, nz) and ``K`` (s, nz, nu) of :func:`stage_blocks` in
+    place, without what only the tangent needs (``dF/dth^k``, ``dF/ddt``,
+    ``dF/ds``): the Newton matrix of a step.
+
+    The diagonal blocks are assembled as :func:`.bdf2_tangent.step_matrices`
+    does (exact load columns; increment columns ``G dexp(u) + E``, ``G`` the
+    exact frame derivative, ``E`` the explicit ``u`` of the orientation
+    rows), from the same kernels; tests check both against each other.
+    """
+    s = Zf.shape[0]
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nu, npos = reduced_counts(zmap, rmap, N)
+    dL = par[P_DL]
+    rinv = -np.ones(6 * N, dtype=np.int64)
+    for a in range(nz):
+        rinv[rmap[a]] = a
+    q = np.empty((N, 4))
+    u = np.empty(3)
+    w = np.empty(3)
+    for i in range(s):
+        zf = Zf[i]
+        coef = _stage_coef(i, dt, W)
+        gdt = coef[C_G] * dt
+        frames_at(zf, qk, q)
+        t = tangents(q)
+        X = positions(t, dL)
+        Lam, Fc, Tc = unpack_loads(zf, N)
+        Mob = dense_mobility(X, par, flags)
+        B, A, _ = _segment_blocks(zf, N)
+        Jl = _load_columns(zf, t, coef, par, zmap, rmap, scales[i], nu, Mob, A)
+        for a in range(nz):
+            for b in range(nz - nu):
+                Jd[i, a, nu + b] = Jl[a, b]
+        _, Om = velocities(q, t, X, Lam, Fc, Tc, par, flags)
+        Br = _reduced_block(B, zmap, nu)
+        Ju = residual_frame_jacobian(zf, q, t, X, coef, par, flags, Mob, zmap, rmap, nu, A) @ Br
+        for a in range(nz):
+            for b in range(nu):
+                Jd[i, a, b] = Ju[a, b]
+        for b in range(nu):
+            m = zmap[b] // 3  # segment m + 1
+            c = zmap[b] % 3
+            for k in range(3):
+                u[k] = zf[3 * m + k]
+                w[k] = Om[m + 1, k]
+            D = dexp_inv_du(u, w)
+            for r in range(3):
+                a = rinv[3 * N + 3 * (m + 1) + r]
+                if a >= 0:
+                    Jd[i, a, b] += (1.0 if r == c else 0.0) - gdt * D[r, c]
+        AB = arm_matrix(t, zmap, rmap, nu, npos, dL) @ Br
+        for a in range(nz):
+            for b in range(nu):
+                K[i, a, b] = AB[a, b] if a < npos else 0.0
+        for b in range(nu):
+            a = rinv[3 * N + 3 * (zmap[b] // 3 + 1) + zmap[b] % 3]
+            if a >= 0:
+                K[i, a, b] += 1.0
 
 
 @njit(cache=True)
