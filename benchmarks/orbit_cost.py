@@ -411,7 +411,8 @@ def radau_step_breakdown(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
     piv, cpiv = np.empty((s, nz), dtype=np.int32), np.empty(s * nu, dtype=np.int32)
     Cap = np.empty((s * nu, s * nu))
     B = np.ones((s, nz, 1))
-    _ks.block_factor(Jd, K, st.W, piv, Cap, cpiv)
+    Gt = np.empty((s, nu, nz))
+    _ks.block_factor(Jd, K, st.W, piv, Gt, Cap, cpiv)
     Zo = np.empty_like(Z)
     J = _kr.stage_jacobian(*args)[0]
     parts = {
@@ -422,8 +423,8 @@ def radau_step_breakdown(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
                                                    st._zmap, st._rmap, st._scales, Jd, K),
         "stage_blocks_tangent": lambda: _kr.stage_blocks(*args),
         "block_factor": lambda: (Jd.__setitem__(slice(None), Jd0),
-                                 _ks.block_factor(Jd, K, st.W, piv, Cap, cpiv)),
-        "block_solve": lambda: _ks.block_solve(Jd, K, st.W, piv, Cap, cpiv, B),
+                                 _ks.block_factor(Jd, K, st.W, piv, Gt, Cap, cpiv)),
+        "block_solve": lambda: _ks.block_solve(Jd, K, st.W, piv, Gt, Cap, cpiv, B),
         "stage_residual": lambda: _kr.stage_residual(Z, F, qk, xk, st.dt, st.W, st.par,
                                                      st.phys.flags, st._zmap, st._rmap,
                                                      st._scales),

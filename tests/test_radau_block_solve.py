@@ -85,6 +85,11 @@ def test_block_solve_inverts_the_dense_stage_jacobian(dimension: str, block: str
     Xd = sla.solve(J, B)
     assert np.abs(X - Xd).max() < 1e-11 * np.abs(Xd).max()
     assert np.abs(J @ X - B).max() < 1e-11 * np.abs(B).max()
+    # the tangent's solve: the last stage's increments only
+    blocks = kr.stage_blocks(*args)
+    nu = blocks[1].shape[2]
+    du = radau._block_solver(blocks, st.W, last=True)(B.reshape(st.s, nz, 5))
+    assert np.abs(du - Xd[(st.s - 1) * nz:(st.s - 1) * nz + nu]).max() < 1e-11 * np.abs(Xd).max()
 
 
 class DenseRadau(radau.RadauStepper):

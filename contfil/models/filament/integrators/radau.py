@@ -414,20 +414,24 @@ class RadauStepper:
         return self.state
 
 
-def _block_solver(blocks: tuple, W: Array) -> Callable[[Array], Array]:
+def _block_solver(blocks: tuple, W: Array, last: bool = False) -> Callable[[Array], Array]:
     """``B -> J^{-1} B`` (B (s, nz, k)) for the stage Jacobian given by
-    :func:`~contfil.models.filament.kernels.radau_step.stage_blocks`."""
+    :func:`~contfil.models.filament.kernels.radau_step.stage_blocks`
+    (``last``: only the last stage's increments (nu, k), all a tangent needs)."""
     Jd, K = blocks[0], blocks[1]
     s, nz, nu = K.shape
     piv = np.empty((s, nz), dtype=np.int32)
+    Gt = np.empty((s, nu, nz))
     Cap = np.empty((s * nu, s * nu))
     cpiv = np.empty(s * nu, dtype=np.int32)
-    if _ks.block_factor(Jd, K, W, piv, Cap, cpiv) != 0:
+    if _ks.block_factor(Jd, K, W, piv, Gt, Cap, cpiv) != 0:
         raise NonFiniteError("Radau IIA: singular stage Jacobian")
 
     def solve(B: Array) -> Array:
         X = np.array(B, dtype=float, order="C")
-        _ks.block_solve(Jd, K, W, piv, Cap, cpiv, X)
+        if last:
+            return _ks.coupling_solve(Gt, Cap, cpiv, X)[(s - 1) * nu:]
+        _ks.block_solve(Jd, K, W, piv, Gt, Cap, cpiv, X)
         return X
 
     return solve
@@ -540,8 +544,8 @@ def flow_tangent(
         _, _, Jth, c_dt, c_s, Bs, Rs = blocks
         # (the stepper keeps its own Newton matrices, so phi is the flow's bit for bit)
         rhs = Jth @ dth + np.outer(c_dt, ddt) + np.outer(c_s, ds)
-        dZ = _block_solver(blocks, st.W)(rhs.reshape(st.s, nz, nd))
-        du_s = -dZ[st.s - 1, :nu]
+        # only the last stage's increments move the frames: the coupling solve
+        du_s = -_block_solver(blocks, st.W, last=True)(rhs.reshape(st.s, nz, nd))
         dth = Bs @ du_s + Rs @ dth
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular stage Jacobian)")

@@ -141,13 +141,14 @@ def lu_solve_tt(A: np.ndarray, piv: np.ndarray, B: np.ndarray) -> None:
 
 @njit(cache=True, fastmath=_FAST)
 def block_factor(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
-                 Cap: np.ndarray, cpiv: np.ndarray) -> int:
+                 Gt: np.ndarray, Cap: np.ndarray, cpiv: np.ndarray) -> int:
     """Factor the stage Jacobian given by blocks (:func:`.radau_step.stage_blocks`).
 
     ``Jd`` (s, nz, nz) is overwritten by the LUs of the diagonal blocks
-    (``piv`` (s, nz) int32), ``Cap`` (s nu, s nu) by the LU of the coupling
-    matrix ``I + S`` (``cpiv`` int32). Returns 0, or 1 + the index of an
-    exactly singular block (``s + 1``: the coupling matrix).
+    (``piv`` (s, nz) int32), ``Gt`` (s, nu, nz) gets the increment rows
+    ``P J_i^{-1}``, ``Cap`` (s nu, s nu) the LU of the coupling matrix ``I +
+    S`` (``cpiv`` int32). Returns 0, or 1 + the index of an exactly singular
+    block (``s + 1``: the coupling matrix).
     """
     s, nz = Jd.shape[0], Jd.shape[1]
     nu = K.shape[2]
@@ -155,21 +156,21 @@ def block_factor(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
         for b in range(s * nu):
             Cap[a, b] = 0.0
         Cap[a, a] = 1.0
-    Gt = np.empty((nu, nz))
     for i in range(s):
-        # getrf of J_i^T and, in the same LAPACK call, Gt = (J_i^{-T} P^T)^T =
-        # P J_i^{-1}: the increment rows of J_i^{-1} (Fortran view of Gt: P^T)
+        # getrf of J_i^T and, in the same LAPACK call, Gt_i = (J_i^{-T} P^T)^T
+        # = P J_i^{-1} (its Fortran view is the right-hand side P^T)
+        Gi = Gt[i]
         for a in range(nu):
             for r in range(nz):
-                Gt[a, r] = 0.0
-            Gt[a, a] = 1.0
-        if _GESV(_KIND, nz, nu, Jd[i].ctypes, nz, piv[i].ctypes, Gt.ctypes, nz) != 0:
+                Gi[a, r] = 0.0
+            Gi[a, a] = 1.0
+        if _GESV(_KIND, nz, nu, Jd[i].ctypes, nz, piv[i].ctypes, Gi.ctypes, nz) != 0:
             return 1 + i
         for j in range(s):
             if j == i:
                 continue
             w = W[i, j] / W[i, i]
-            S = np.dot(Gt, K[j])
+            S = np.dot(Gi, K[j])
             for a in range(nu):
                 for b in range(nu):
                     Cap[i * nu + a, j * nu + b] += w * S[a, b]
@@ -179,7 +180,25 @@ def block_factor(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
 
 
 @njit(cache=True, fastmath=_FAST)
-def block_solve(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
+def coupling_solve(Gt: np.ndarray, Cap: np.ndarray, cpiv: np.ndarray,
+                   B: np.ndarray) -> np.ndarray:
+    """The increments ``dU`` (s nu, k) of ``J^{-1} B`` (B (s, nz, k)): ``(I +
+    S) dU = [P J_i^{-1} B_i]_i`` (factors of :func:`block_factor`)."""
+    s, nu, nz = Gt.shape
+    k = B.shape[2]
+    dU = np.zeros((s * nu, k))
+    for i in range(s):
+        for a in range(nu):
+            for r in range(nz):
+                g = Gt[i, a, r]
+                for j in range(k):
+                    dU[i * nu + a, j] += g * B[i, r, j]
+    lu_solve_t(Cap, cpiv, dU)
+    return dU
+
+
+@njit(cache=True, fastmath=_FAST)
+def block_solve(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray, Gt: np.ndarray,
                 Cap: np.ndarray, cpiv: np.ndarray, B: np.ndarray) -> None:
     """``B <- J^{-1} B`` in place, ``B`` (s, nz, k): the stage Jacobian
     factored by :func:`block_factor`, any number ``k`` of right-hand sides."""
@@ -187,16 +206,7 @@ def block_solve(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
     nu = K.shape[2]
     k = B.shape[2]
     R = np.empty((nz, k))
-    dU = np.empty((s * nu, k))
-    for i in range(s):
-        for r in range(nz):
-            for j in range(k):
-                R[r, j] = B[i, r, j]
-        lu_solve_t(Jd[i], piv[i], R)
-        for a in range(nu):
-            for j in range(k):
-                dU[i * nu + a, j] = R[a, j]
-    lu_solve_t(Cap, cpiv, dU)
+    dU = coupling_solve(Gt, Cap, cpiv, B)
     KU = np.empty((s, nz, k))
     for m in range(s):
         for r in range(nz):
@@ -312,6 +322,7 @@ def newton_step(
             break
     Jd = np.empty((s, nz, nz))
     K = np.empty((s, nz, nu))
+    Gt = np.empty((s, nu, nz))
     piv = np.empty((s, nz), dtype=np.int32)
     Cap = np.empty((s * nu, s * nu))
     cpiv = np.empty(s * nu, dtype=np.int32)
@@ -331,7 +342,7 @@ def newton_step(
             physical(Z, scales, zmap, Zf)
             newton_blocks(Zf, qk, dt, W, par, flags, zmap, rmap, scales, Jd, K)
             builds += 1
-            if block_factor(Jd, K, W, piv, Cap, cpiv) != 0:
+            if block_factor(Jd, K, W, piv, Gt, Cap, cpiv) != 0:
                 return NONFINITE, its, builds, res
             have = True
             fresh = True
@@ -339,7 +350,7 @@ def newton_step(
         for i in range(s):
             for a in range(nz):
                 dZ[i, a, 0] = F[i, a]
-        block_solve(Jd, K, W, piv, Cap, cpiv, dZ)
+        block_solve(Jd, K, W, piv, Gt, Cap, cpiv, dZ)
         for i in range(s):
             for a in range(nz):
                 Zn[i, a] = Z[i, a] - dZ[i, a, 0]
