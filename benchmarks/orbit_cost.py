@@ -55,7 +55,7 @@ sweep 2.29 (5.50 and 10.94 with difference columns); the tangent step
 Run (single-threaded BLAS; CPU times of this process)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py    (~10 min CPU)
-    OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py --quick   (step costs only, ~1 min)
+    OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py --quick   (step costs only, ~20 s)
 
 The Radau rows also time the previous Radau solver side by side
 (``*_before``: Newton in Python on the dense stage Jacobian, one scipy LU of
@@ -620,9 +620,10 @@ def main() -> None:
 
 
 def main_quick() -> None:
-    """``--quick``: the step costs only (~1 min): BDF2 T/400 and the Radau flow
+    """``--quick``: the step costs only (~20 s): BDF2 T/400 and the Radau flow
     at 80 steps (block elimination, and the previous dense-LU solver) on the
-    Radau orbit at b1 = 716.5, interleaved, against the floor."""
+    Radau orbit at b1 = 716.5, interleaved, against the floor; the same Radau
+    flows of the 3D model at the planar orbit (in the planar BDF2 unit)."""
     m = FilamentModel(ROOT / "branches" / "tip_sf.toml")
     x0 = start_orbit(m)
     q = np.array([P0])
@@ -637,11 +638,15 @@ def main_quick() -> None:
     phi, T = x[:-1], float(x[-1])
     dense = dense_radau_flow(pl.base, phi, q, T, RADAU_STEPS)
     new = rf.flow(phi, q, T)
-    c_r, c_b, c_d = [], [], []
+    c_r, c_b, c_d, c_r3, c_d3 = [], [], [], [], []
+    U = embed_planar(phi)  # the same orbit in the 3D model (360 stage unknowns)
     for _ in range(5):
         c_r.append(cpu(lambda: rf.flow(phi, q, T), 1))
         c_b.append(cpu(lambda: pl.flow(phi, q, T), 1))
         c_d.append(cpu(lambda: dense_radau_flow(pl.base, phi, q, T, RADAU_STEPS), 1))
+    for _ in range(2):
+        c_r3.append(cpu(lambda: RadauFlow(m, RADAU_STEPS).flow(U, q, T), 1))
+        c_d3.append(cpu(lambda: dense_radau_flow(m, U, q, T, RADAU_STEPS), 1))
     unit = min(c_b)
     fr = floor_ratio(m, x0, unit)
     floor_s = (unit / STEPS) / fr
@@ -654,6 +659,8 @@ def main_quick() -> None:
         "step_vs_floor_new_integrator": round(min(c_r) / RADAU_STEPS / floor_s, 2),
         "stage_vs_floor_new_integrator": round(min(c_r) / RADAU_STEPS / floor_s / 3, 2),
         "step_vs_floor_new_integrator_before": round(min(c_d) / RADAU_STEPS / floor_s, 2),
+        "radau_flow_3d_units": round(min(c_r3) / unit, 2),
+        "radau_flow_3d_units_before": round(min(c_d3) / unit, 2),
         "floor_us": round(1e6 * floor_s, 1),
         "bdf2_step_us": round(1e6 * unit / STEPS, 1),
         "radau_step_us": {k: round(v, 1) for k, v in rb.items()},

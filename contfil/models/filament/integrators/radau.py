@@ -17,19 +17,26 @@ in docs/accuracy.md ("Work-precision of the periodic-orbit integrators").
   rotations may grow without bound (RKMK-style local charts). Quaternions
   are renormalised after each step (round-off only).
 - **Solver.** Newton on all stages together with the exact stage Jacobian
-  (the BDF2 step Jacobians on the diagonal, kinematic off-diagonal blocks),
-  LU-factored once per step at the predictor, which extrapolates the
-  previous step's collocation polynomial: on the beating orbit at ``T/80``
-  the residual goes 7e-4 -> 4e-9 -> 1e-13, so a step costs one Jacobian,
-  one LU and three residuals (rebuilt within the step only when the
-  iteration contracts slowly, ``rate``).
+  (the BDF2 step Jacobians on the diagonal, kinematic off-diagonal blocks
+  without load columns), factored once per step at the predictor, which
+  extrapolates the previous step's collocation polynomial: on the beating
+  orbit at ``T/80`` the residual goes 7e-4 -> 4e-9 -> 1e-13, so a step
+  costs one Jacobian, one factorisation and three residuals (rebuilt within
+  the step only when the iteration contracts slowly, ``rate``). The
+  Jacobian is kept by blocks and solved by block elimination over the
+  stages' increments (:mod:`~contfil.models.filament.kernels.radau_solve`:
+  three LUs of one stage and one of the ``s nu`` coupling unknowns instead
+  of one LU of ``s nz``), and the default solver's whole step loop runs in
+  one compiled call (docs/decisions.md 29).
 - **Tangent.** :func:`flow_tangent` differentiates the converged stage
   equations (implicit function theorem): per step the exact stage Jacobian
-  at the solution, one LU, all directions (monodromy columns, ``d/dT``,
-  ``d/ds``) solved together, so a sweep costs about one Jacobian and one
-  LU per step more than a flow (measured ~2 flows, docs/performance.md).
-  The stepper's own Newton path is unchanged, so the sweep's end point is
-  the flow's bit for bit.
+  at the solution, factored by blocks, all directions (monodromy columns,
+  ``d/dT``, ``d/ds``) solved together, and only for the last stage's
+  increments (the coupling system; the frames move by them alone), so a
+  sweep costs about one Jacobian and one factorisation per step more than
+  a flow (measured ~2.5 flows, docs/performance.md). The stepper's own
+  Newton path is unchanged, so the sweep's end point is the flow's bit for
+  bit.
 
 The flow is a smooth function of ``(u, T, s)`` at fixed ``steps`` (up to the
 Newton tolerance), as shooting needs.
