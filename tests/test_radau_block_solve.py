@@ -85,11 +85,16 @@ def test_block_solve_inverts_the_dense_stage_jacobian(dimension: str, block: str
     Xd = sla.solve(J, B)
     assert np.abs(X - Xd).max() < 1e-11 * np.abs(Xd).max()
     assert np.abs(J @ X - B).max() < 1e-11 * np.abs(B).max()
-    # the tangent's solve: the last stage's increments only
-    blocks = kr.stage_blocks(*args)
-    nu = blocks[1].shape[2]
-    du = radau._block_solver(blocks, st.W, last=True)(B.reshape(st.s, nz, 5))
-    assert np.abs(du - Xd[(st.s - 1) * nz:(st.s - 1) * nz + nu]).max() < 1e-11 * np.abs(Xd).max()
+    # the tangent's solve: the increments only (the coupling system)
+    Jd, K = kr.stage_blocks(*args)[:2]
+    nu = K.shape[2]
+    piv, cpiv = np.empty((st.s, nz), dtype=np.int32), np.empty(st.s * nu, dtype=np.int32)
+    Gt, Cap = np.empty((st.s, nu, nz)), np.empty((st.s * nu, st.s * nu))
+    assert ks.block_factor(Jd, K, st.W, piv, Gt, Cap, cpiv) == 0
+    dU = ks.coupling_solve(Gt, Cap, cpiv, B.reshape(st.s, nz, 5))
+    for i in range(st.s):
+        assert np.abs(dU[i * nu:(i + 1) * nu] - Xd[i * nz:i * nz + nu]).max() < (
+            1e-11 * np.abs(Xd).max())
 
 
 class DenseRadau(radau.RadauStepper):

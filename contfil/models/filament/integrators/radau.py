@@ -421,10 +421,9 @@ class RadauStepper:
         return self.state
 
 
-def _block_solver(blocks: tuple, W: Array, last: bool = False) -> Callable[[Array], Array]:
+def _block_solver(blocks: tuple, W: Array) -> Callable[[Array], Array]:
     """``B -> J^{-1} B`` (B (s, nz, k)) for the stage Jacobian given by
-    :func:`~contfil.models.filament.kernels.radau_step.stage_blocks`
-    (``last``: only the last stage's increments (nu, k), all a tangent needs)."""
+    :func:`~contfil.models.filament.kernels.radau_step.stage_blocks`."""
     Jd, K = blocks[0], blocks[1]
     s, nz, nu = K.shape
     piv = np.empty((s, nz), dtype=np.int32)
@@ -436,8 +435,6 @@ def _block_solver(blocks: tuple, W: Array, last: bool = False) -> Callable[[Arra
 
     def solve(B: Array) -> Array:
         X = np.array(B, dtype=float, order="C")
-        if last:
-            return _ks.coupling_solve(Gt, Cap, cpiv, X)[(s - 1) * nu:]
         _ks.block_solve(Jd, K, W, piv, Gt, Cap, cpiv, X)
         return X
 
@@ -537,7 +534,6 @@ def flow_tangent(
         ddt[kdir] = 1.0 / n
     if want_p:
         ds[-1] = 1.0
-    nz = tz.size
     samp: list[Array] = []
     every = n // samples if samples else 0
     for k in range(n):
@@ -545,15 +541,12 @@ def flow_tangent(
             samp.append(st.state)
         qk = st._q.copy()
         Z = st._advance(1)
-        Zf = st._physical(Z)
-        blocks = _kr.stage_blocks(Zf, qk, st.dt, st.W, st_par, st_dpar, flags, tz, tr,
-                                  st._scales, want_p)
-        _, _, Jth, c_dt, c_s, Bs, Rs = blocks
         # (the stepper keeps its own Newton matrices, so phi is the flow's bit for bit)
-        rhs = Jth @ dth + np.outer(c_dt, ddt) + np.outer(c_s, ds)
-        # only the last stage's increments move the frames: the coupling solve
-        du_s = -_block_solver(blocks, st.W, last=True)(rhs.reshape(st.s, nz, nd))
-        dth = Bs @ du_s + Rs @ dth
+        try:
+            dth = _ks.tangent_step(st._physical(Z), qk, st.dt, st.W, st_par, st_dpar, flags,
+                                   tz, tr, st._scales, want_p, dth, ddt, ds)
+        except ZeroDivisionError as exc:
+            raise NonFiniteError(f"flow_tangent: {exc} at step {k}") from exc
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular stage Jacobian)")
     U1 = state_from_frames(st._q)

@@ -41,7 +41,7 @@ from numba.np.linalg import _LAPACK
 from .bdf2_residual import frames_at
 from .effects import P_DL
 from .geometry import positions, tangents
-from .radau_step import newton_blocks, stage_residual
+from .radau_step import newton_blocks, stage_blocks, stage_residual
 
 #: LAPACK ``dgetrf`` as numba binds it for ``np.linalg.inv`` (kind, m, n, a, lda, ipiv)
 _GETRF = _LAPACK().numba_xxgetrf(types.float64)
@@ -441,3 +441,51 @@ def advance(
         stats[i, 1] = builds
         accept(Z, scales, zmap, q, Zf)
     return nsteps
+
+
+@njit(cache=True)
+def tangent_step(
+    Zf: np.ndarray,
+    qk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    dpar: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+    want_p: bool,
+    dth: np.ndarray,
+    ddt: np.ndarray,
+    ds: np.ndarray,
+) -> np.ndarray:
+    """The frames' perturbation after a converged step, ``dth^{k+1}`` (nu, nd).
+
+    Implicit function theorem on the stage equations at the converged
+    physical stage unknowns ``Zf``: ``J dZ = -(dF/dth^k dth + dF/ddt ddt +
+    dF/ds ds)`` for all ``nd`` directions at once, solved for the last
+    stage's increments only (the coupling system of :func:`block_factor`),
+    then ``dth^{k+1} = dexp(u_s) du_s + Rot(u_s) dth``. ``zmap``/``rmap``
+    select the tangent block. Raises on an exactly singular Jacobian.
+    """
+    s = Zf.shape[0]
+    nz = zmap.shape[0]
+    nd = dth.shape[1]
+    Jd, K, Jth, c_dt, c_s, Bs, Rs = stage_blocks(Zf, qk, dt, W, par, dpar, flags, zmap, rmap,
+                                                 scales, want_p)
+    nu = K.shape[2]
+    piv = np.empty((s, nz), dtype=np.int32)
+    Gt = np.empty((s, nu, nz))
+    Cap = np.empty((s * nu, s * nu))
+    cpiv = np.empty(s * nu, dtype=np.int32)
+    if block_factor(Jd, K, W, piv, Gt, Cap, cpiv) != 0:
+        raise ZeroDivisionError("Radau IIA tangent: singular stage Jacobian")
+    R = (Jth @ dth).reshape((s, nz, nd))
+    for i in range(s):
+        for a in range(nz):
+            for j in range(nd):
+                R[i, a, j] += c_dt[i * nz + a] * ddt[j] + c_s[i * nz + a] * ds[j]
+    dU = coupling_solve(Gt, Cap, cpiv, R)
+    du_s = np.ascontiguousarray(dU[(s - 1) * nu:])
+    return Rs @ dth - Bs @ du_s
