@@ -17,19 +17,22 @@ increments: the stages couple only through their ``s nu`` increments. So
 (block Gaussian elimination with the ``s nu`` coupling unknowns as the
 Schur complement): ``s`` LUs of ``nz`` and one of ``s nu`` (three of 60
 and one of 57 on the planar N = 20 filament, instead of one LU of 180).
-The rows ``P J_i^{-1}`` come from one transposed solve with ``nu``
-right-hand sides. Exactly the same linear system as the dense one, to
-round-off.
+The rows ``P J_i^{-1}`` come with the LU of ``J_i`` from one LAPACK
+``gesv`` with the ``nu`` right-hand sides ``P^T`` (of the transpose).
+Exactly the same linear system as the dense one, to round-off. A tangent
+needs only the last stage's increments: :func:`coupling_solve` alone.
 
-The LUs are LAPACK's ``getrf`` through numba's own LAPACK binding (the
-one behind ``np.linalg.inv``; cacheable), applied to the C-ordered matrix,
-i.e. it factors the transpose ``A^T = P L U`` in Fortran order; the
-triangular solves are compiled loops (:func:`lu_solve_t`, :func:`lu_solve_tt`).
+The LUs are LAPACK's ``getrf``/``gesv`` through numba's own LAPACK binding
+(the one behind ``np.linalg.inv``/``solve``; cacheable), applied to the
+C-ordered matrix, i.e. they factor the transpose ``A^T = P L U`` in
+Fortran order; the triangular solves with those factors are compiled loops
+(:func:`lu_solve_t`).
 
 :func:`advance` takes whole Radau steps (predictor, Newton with the block
 solve, acceptance) in one call, the loop of
 :class:`~contfil.models.filament.integrators.radau.RadauStepper` with its
-rules unchanged (so no Python per iteration).
+rules unchanged (so no Python per iteration); :func:`tangent_step` is one
+step of the tangent sweep.
 """
 
 from __future__ import annotations
@@ -109,34 +112,6 @@ def lu_solve_t(A: np.ndarray, piv: np.ndarray, B: np.ndarray) -> None:
         if p != i:
             for j in range(k):
                 B[i, j], B[p, j] = B[p, j], B[i, j]
-
-
-@njit(cache=True, fastmath=_FAST)
-def lu_solve_tt(A: np.ndarray, piv: np.ndarray, B: np.ndarray) -> None:
-    """``B <- M^{-T} B`` (B (n, k)) for ``M`` factored by :func:`lu_factor_t`
-    (``M^T = P L U``: pivots, then column sweeps, the right-hand sides innermost)."""
-    n = A.shape[0]
-    k = B.shape[1]
-    for i in range(n):
-        p = piv[i] - 1
-        if p != i:
-            for j in range(k):
-                B[i, j], B[p, j] = B[p, j], B[i, j]
-    for c in range(n):
-        for r in range(c + 1, n):
-            lrc = A[c, r]
-            if lrc != 0.0:
-                for j in range(k):
-                    B[r, j] -= lrc * B[c, j]
-    for c in range(n - 1, -1, -1):
-        d = 1.0 / A[c, c]
-        for j in range(k):
-            B[c, j] *= d
-        for r in range(c):
-            urc = A[c, r]
-            if urc != 0.0:
-                for j in range(k):
-                    B[r, j] -= urc * B[c, j]
 
 
 @njit(cache=True, fastmath=_FAST)
