@@ -127,6 +127,11 @@ def test_compiled_step_reaches_the_dense_newton_steps(dimension: str, actuation:
     # the same Newton iterates up to the round-off of the two linear solvers
     assert np.abs(ya - yb).max() < 1e-11 * np.abs(yb).max()
     assert a.iterations == b.iterations and a.builds == b.builds
+    # the Python loop with the block solve (a matrix carried over, other
+    # iterates): the same map up to the Newton tolerance (1e-10 scaled)
+    c = radau.RadauStepper(m, 0.002, p=p, reuse=True)
+    c.reset(u0)
+    assert np.abs(c.step(12) - yb).max() < 1e-9 * np.abs(yb).max()
 
 
 def test_compiled_step_failure_raises_and_keeps_the_last_state() -> None:
