@@ -32,9 +32,10 @@ in docs/accuracy.md ("Work-precision of the periodic-orbit integrators").
   equations (implicit function theorem): per step the exact stage Jacobian
   at the solution, factored by blocks, all directions (monodromy columns,
   ``d/dT``, ``d/ds``) solved together, and only for the last stage's
-  increments (the coupling system; the frames move by them alone), so a
-  sweep costs about one Jacobian and one factorisation per step more than
-  a flow (measured ~2.5 flows, docs/performance.md). The stepper's own
+  increments (the coupling system; the frames move by them alone), one
+  compiled call per step, so a sweep costs about one Jacobian and one
+  factorisation per step more than a flow (measured ~2 flows,
+  docs/performance.md). The stepper's own
   Newton path is unchanged, so the sweep's end point is the flow's bit for
   bit.
 
