@@ -55,6 +55,12 @@ sweep 2.29 (5.50 and 10.94 with difference columns); the tangent step
 Run (single-threaded BLAS; CPU times of this process)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py    (~10 min CPU)
+    OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py --quick   (step costs only, ~20 s)
+
+The Radau rows also time the previous Radau solver side by side
+(``*_before``: Newton in Python on the dense stage Jacobian, one scipy LU of
+``s nz`` per step, :class:`DenseLURadau`) and the parts of one step
+(``radau_step_us``).
 
 Ends with one JSON line.
 """
@@ -86,8 +92,11 @@ from contfil.models.filament.cycles import FixedStepFlow  # noqa: E402
 from contfil.models.filament.integrators.bdf2 import embed_planar  # noqa: E402
 from contfil.models.filament.integrators.bdf2_stepper import BDF2Stepper  # noqa: E402
 from contfil.models.filament.integrators.bdf2_tangent import _strength, normal_maps  # noqa: E402
+from contfil.models.filament.integrators.radau import RadauStepper  # noqa: E402
 from contfil.models.filament.kernels import bdf2_step as _k  # noqa: E402
 from contfil.models.filament.kernels import bdf2_tangent as _kt  # noqa: E402
+from contfil.models.filament.kernels import radau_solve as _ks  # noqa: E402
+from contfil.models.filament.kernels import radau_step as _kr  # noqa: E402
 from contfil.models.filament.kernels import rpy as krpy  # noqa: E402
 from contfil.models.filament.kernels.bdf2_residual import frames_at  # noqa: E402
 from contfil.models.filament.kernels.geometry import configuration, positions, tangents  # noqa: E402
@@ -359,6 +368,76 @@ def period_error(m: FilamentModel, x: np.ndarray, p: float) -> dict[str, Any]:
             "mu_ref_error_estimate": abs(mref - (4 * mu[800] - mu[400]) / 3)}
 
 
+class DenseLURadau(RadauStepper):
+    """The Radau solver before the block elimination (2026-12-03): Newton in
+    Python, each step's dense stage Jacobian (s nz square) LU-factored by scipy."""
+
+    def __init__(self, *a: Any, **kw: Any) -> None:
+        super().__init__(*a, **kw)
+        self._compiled = False
+
+    def _build(self, Z: np.ndarray) -> Any:
+        J = self.jacobian(self._physical(Z), self._zmap, self._rmap)[0]
+        lu = sla.lu_factor(J, check_finite=False)
+        return lambda F: sla.lu_solve(lu, F.ravel(), check_finite=False).reshape(Z.shape)
+
+
+def dense_radau_flow(model: Any, u: np.ndarray, p: np.ndarray, T: float, steps: int) -> np.ndarray:
+    """The Radau flow with :class:`DenseLURadau` (the previous solver)."""
+    st = DenseLURadau(model, T / steps, p=p)
+    st.reset(u)
+    return st.step(steps)
+
+
+def radau_step_breakdown(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
+                         n: int) -> dict[str, float]:
+    """CPU microseconds of a Radau step's parts at a step of the orbit (planar)."""
+    st = RadauStepper(pl, T / n, p=p)
+    st.reset(phi)
+    st.step(n // 3)
+    qk = st._q.copy()
+    xk = positions(tangents(qk), st.phys.dL)
+    cands = _ks.predictors(st._Zf, True, st._Eu, st._El, st.c, st._scales, st._zmap)
+    Z = st._advance(1)
+    its = st.iterations[-1]
+    Zf = st._physical(Z)
+    s, nz = Z.shape
+    F = np.empty_like(Z)
+    args = (Zf, qk, st.dt, st.W, st.par, st.par, st.phys.flags, st._zmap, st._rmap, st._scales,
+            False)
+    Jd0, K = _kr.stage_blocks(*args)[:2]
+    nu = K.shape[2]
+    Jd = Jd0.copy()
+    piv, cpiv = np.empty((s, nz), dtype=np.int32), np.empty(s * nu, dtype=np.int32)
+    Cap = np.empty((s * nu, s * nu))
+    B = np.ones((s, nz, 1))
+    Gt = np.empty((s, nu, nz))
+    _ks.block_factor(Jd, K, st.W, piv, Gt, Cap, cpiv)
+    Zo = np.empty_like(Z)
+    J = _kr.stage_jacobian(*args)[0]
+    parts = {
+        "step": lambda: _ks.newton_step(cands, qk, xk, st.dt, st.W, st.par, st.phys.flags,
+                                        st._zmap, st._rmap, st._scales, st.tol, 25, st._rules,
+                                        Zo),
+        "newton_blocks": lambda: _kr.newton_blocks(Zf, qk, st.dt, st.W, st.par, st.phys.flags,
+                                                   st._zmap, st._rmap, st._scales, Jd, K),
+        "stage_blocks_tangent": lambda: _kr.stage_blocks(*args),
+        "block_factor": lambda: (Jd.__setitem__(slice(None), Jd0),
+                                 _ks.block_factor(Jd, K, st.W, piv, Gt, Cap, cpiv)),
+        "block_solve": lambda: _ks.block_solve(Jd, K, st.W, piv, Gt, Cap, cpiv, B),
+        "stage_residual": lambda: _kr.stage_residual(Z, F, qk, xk, st.dt, st.W, st.par,
+                                                     st.phys.flags, st._zmap, st._rmap,
+                                                     st._scales),
+        "dense_lu_before": lambda: sla.lu_factor(J, check_finite=False),
+    }
+    us = dict.fromkeys(parts, np.inf)
+    for _ in range(5):
+        for name, f in parts.items():
+            us[name] = min(us[name], _per_call_us(f, 20 if name == "step" else 60))
+    us["newton_iterations"] = float(its)
+    return us
+
+
 class RadauPointFlow(RadauFlow):
     """The continuation point's flow with Radau IIA at ``RADAU_STEPS``."""
 
@@ -400,21 +479,27 @@ def radau_costs(m: FilamentModel, x: np.ndarray, p: float, x_start: np.ndarray,
 
     rf = RadauFlow(pl.base, n1)
     phi, Tp = x_r[:-1], x_r[-1]
-    c_r, c_b, s_r, s_b = [], [], [], []
+    c_r, c_b, s_r, s_b, c_d = [], [], [], [], []
+    dense = dense_radau_flow(pl.base, phi, q, Tp, n1)
+    new = rf.flow(phi, q, Tp)
     for _ in range(5):
         c_r.append(cpu(lambda: rf.flow(phi, q, Tp), 1))
         c_b.append(cpu(lambda: pl.flow(phi, q, Tp), 1))
+        c_d.append(cpu(lambda: dense_radau_flow(pl.base, phi, q, Tp, n1), 1))
     for _ in range(2):
         s_r.append(cpu(lambda: solve(RadauFlow, n1), 1))
         s_b.append(cpu(lambda: solve(FixedStepFlow, STEPS), 1))
     step_r = min(c_r) / n1
-    return {"T": T, "T_ref": ref, "period_error": abs(T[n1] - ref) / ref,
+    return {"T": T, "T_ref": ref, "period_error": abs(T[n1] - ref) / ref, "x": x_r,
             "ref_error_estimate": abs(T[n4] - T[n2]) / 31.0 / ref,
             "observed_order": float(np.log2(abs(T[n1] - T[n2]) / abs(T[n2] - T[n4]))),
             "flow_cpu": min(c_r), "bdf2_flow_cpu": min(c_b),
             "cpu_vs_bdf2_T400": min(c_r) / min(c_b),
             "solve_cpu": min(s_r), "bdf2_solve_cpu": min(s_b),
-            "solve_cpu_vs_bdf2_T400": min(s_r) / min(s_b), "step_cpu": step_r}
+            "solve_cpu_vs_bdf2_T400": min(s_r) / min(s_b), "step_cpu": step_r,
+            "flow_cpu_dense_lu": min(c_d), "cpu_vs_bdf2_T400_dense_lu": min(c_d) / min(c_b),
+            "step_cpu_dense_lu": min(c_d) / n1,
+            "flow_dense_lu_vs_block_rel": float(np.abs(dense - new).max() / np.abs(dense).max())}
 
 
 def main() -> None:
@@ -480,6 +565,14 @@ def main() -> None:
           f"({rc['cpu_vs_bdf2_T400']:.2f}); orbit solve {rc['solve_cpu']:.2f} s vs "
           f"{rc['bdf2_solve_cpu']:.2f} s ({rc['solve_cpu_vs_bdf2_T400']:.2f}); step "
           f"{1e6 * rc['step_cpu']:.0f} us = {rc['step_cpu'] / floor_s:.1f} floors")
+    rb = radau_step_breakdown(
+        FixedStepFlow(m, STEPS).symmetries.invariant_subspaces["planar_xz"].reduced_model().base,
+        rc["x"][:-1], np.array([after["p"]]), float(rc["x"][-1]), RADAU_STEPS)
+    print(f"Radau step before (dense LU, Python Newton): {1e6 * rc['step_cpu_dense_lu']:.0f} us = "
+          f"{rc['step_cpu_dense_lu'] / floor_s:.1f} floors, flow "
+          f"{rc['cpu_vs_bdf2_T400_dense_lu']:.3f} of BDF2 T/400; end states differ by "
+          f"{rc['flow_dense_lu_vs_block_rel']:.1e} (relative)")
+    print("Radau step parts, us: " + ", ".join(f"{k} {v:.1f}" for k, v in rb.items()))
     print(f"Radau point: units flow {ru['flow']:.2f}, 3D flow {ru['flow_3d']:.2f}, planar sweep "
           f"{ru['sweep_planar']:.2f}, 3D block sweep {ru['sweep_3d_block']:.2f}; flows per "
           f"point {flows_radau:.2f}; CPU {rad['cpu']:.3f} s ({rad['cpu'] / after['cpu']:.2f} of "
@@ -503,6 +596,10 @@ def main() -> None:
         "step_vs_floor": round(fr, 2),
         "step_vs_floor_new_integrator": round(rc["step_cpu"] / floor_s, 2),
         "stage_vs_floor_new_integrator": round(rc["step_cpu"] / floor_s / 3, 2),
+        "cpu_vs_bdf2_T400_before": round(rc["cpu_vs_bdf2_T400_dense_lu"], 3),
+        "step_vs_floor_new_integrator_before": round(rc["step_cpu_dense_lu"] / floor_s, 2),
+        "radau_block_vs_dense_lu_rel": float(f"{rc['flow_dense_lu_vs_block_rel']:.2e}"),
+        "radau_step_us": {k: round(v, 1) for k, v in rb.items()},
         "flows_per_point_radau": round(flows_radau, 2),
         "cpu_per_point_radau_s": round(rad["cpu"], 3),
         "cpu_per_point_radau_vs_bdf2": round(rad["cpu"] / after["cpu"], 3),
@@ -522,5 +619,58 @@ def main() -> None:
     print(json.dumps(out))
 
 
+def main_quick() -> None:
+    """``--quick``: the step costs only (~20 s): BDF2 T/400 and the Radau flow
+    at 80 steps (block elimination, and the previous dense-LU solver) on the
+    Radau orbit at b1 = 716.5, interleaved, against the floor; the same Radau
+    flows of the 3D model at the planar orbit (in the planar BDF2 unit)."""
+    m = FilamentModel(ROOT / "branches" / "tip_sf.toml")
+    x0 = start_orbit(m)
+    q = np.array([P0])
+    pb = problem(m, P0, cls=RadauFlow, steps=RADAU_STEPS, jacobian_update="exact")
+    pb.set_reference(x0[:-1], P0)
+    x, info = newton_dense(lambda z: pb.residual(z, P0), lambda z: pb.jacobian(z, P0), x0,
+                           tol=1e-11, max_iter=12)
+    if not info.converged:
+        raise SystemExit("set-up: the Radau orbit did not converge")
+    pl = FixedStepFlow(m, STEPS).symmetries.invariant_subspaces["planar_xz"].reduced_model()
+    rf = RadauFlow(pl.base, RADAU_STEPS)
+    phi, T = x[:-1], float(x[-1])
+    dense = dense_radau_flow(pl.base, phi, q, T, RADAU_STEPS)
+    new = rf.flow(phi, q, T)
+    c_r, c_b, c_d, c_r3, c_d3 = [], [], [], [], []
+    U = embed_planar(phi)  # the same orbit in the 3D model (360 stage unknowns)
+    for _ in range(5):
+        c_r.append(cpu(lambda: rf.flow(phi, q, T), 1))
+        c_b.append(cpu(lambda: pl.flow(phi, q, T), 1))
+        c_d.append(cpu(lambda: dense_radau_flow(pl.base, phi, q, T, RADAU_STEPS), 1))
+    for _ in range(2):
+        c_r3.append(cpu(lambda: RadauFlow(m, RADAU_STEPS).flow(U, q, T), 1))
+        c_d3.append(cpu(lambda: dense_radau_flow(m, U, q, T, RADAU_STEPS), 1))
+    unit = min(c_b)
+    fr = floor_ratio(m, x0, unit)
+    floor_s = (unit / STEPS) / fr
+    rb = radau_step_breakdown(pl.base, phi, q, T, RADAU_STEPS)
+    rel = np.abs(dense - new).max() / np.abs(dense).max()
+    out = {
+        "cpu_vs_bdf2_T400": round(min(c_r) / unit, 3),
+        "cpu_vs_bdf2_T400_before": round(min(c_d) / unit, 3),
+        "step_vs_floor": round(fr, 2),
+        "step_vs_floor_new_integrator": round(min(c_r) / RADAU_STEPS / floor_s, 2),
+        "stage_vs_floor_new_integrator": round(min(c_r) / RADAU_STEPS / floor_s / 3, 2),
+        "step_vs_floor_new_integrator_before": round(min(c_d) / RADAU_STEPS / floor_s, 2),
+        "radau_flow_3d_units": round(min(c_r3) / unit, 2),
+        "radau_flow_3d_units_before": round(min(c_d3) / unit, 2),
+        "floor_us": round(1e6 * floor_s, 1),
+        "bdf2_step_us": round(1e6 * unit / STEPS, 1),
+        "radau_step_us": {k: round(v, 1) for k, v in rb.items()},
+        "radau_block_vs_dense_lu_rel": float(f"{rel:.2e}"),
+    }
+    print(json.dumps(out))
+
+
 if __name__ == "__main__":
-    main()
+    if "--quick" in sys.argv[1:]:
+        main_quick()
+    else:
+        main()

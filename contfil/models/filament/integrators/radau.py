@@ -17,19 +17,27 @@ in docs/accuracy.md ("Work-precision of the periodic-orbit integrators").
   rotations may grow without bound (RKMK-style local charts). Quaternions
   are renormalised after each step (round-off only).
 - **Solver.** Newton on all stages together with the exact stage Jacobian
-  (the BDF2 step Jacobians on the diagonal, kinematic off-diagonal blocks),
-  LU-factored once per step at the predictor, which extrapolates the
-  previous step's collocation polynomial: on the beating orbit at ``T/80``
-  the residual goes 7e-4 -> 4e-9 -> 1e-13, so a step costs one Jacobian,
-  one LU and three residuals (rebuilt within the step only when the
-  iteration contracts slowly, ``rate``).
+  (the BDF2 step Jacobians on the diagonal, kinematic off-diagonal blocks
+  without load columns), factored once per step at the predictor, which
+  extrapolates the previous step's collocation polynomial: on the beating
+  orbit at ``T/80`` the residual goes 7e-4 -> 4e-9 -> 1e-13, so a step
+  costs one Jacobian, one factorisation and three residuals (rebuilt within
+  the step only when the iteration contracts slowly, ``rate``). The
+  Jacobian is kept by blocks and solved by block elimination over the
+  stages' increments (:mod:`~contfil.models.filament.kernels.radau_solve`:
+  three LUs of one stage and one of the ``s nu`` coupling unknowns instead
+  of one LU of ``s nz``), and the default solver's whole step loop runs in
+  one compiled call (docs/decisions.md 29).
 - **Tangent.** :func:`flow_tangent` differentiates the converged stage
   equations (implicit function theorem): per step the exact stage Jacobian
-  at the solution, one LU, all directions (monodromy columns, ``d/dT``,
-  ``d/ds``) solved together, so a sweep costs about one Jacobian and one
-  LU per step more than a flow (measured ~2 flows, docs/performance.md).
-  The stepper's own Newton path is unchanged, so the sweep's end point is
-  the flow's bit for bit.
+  at the solution, factored by blocks, all directions (monodromy columns,
+  ``d/dT``, ``d/ds``) solved together, and only for the last stage's
+  increments (the coupling system; the frames move by them alone), one
+  compiled call per step, so a sweep costs about one Jacobian and one
+  factorisation per step more than a flow (measured ~2 flows,
+  docs/performance.md). The stepper's own
+  Newton path is unchanged, so the sweep's end point is the flow's bit for
+  bit.
 
 The flow is a smooth function of ``(u, T, s)`` at fixed ``steps`` (up to the
 Newton tolerance), as shooting needs.
@@ -37,6 +45,7 @@ Newton tolerance), as shooting needs.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import Any
 
@@ -48,6 +57,7 @@ from contfil.errors import ConvergenceError, NonFiniteError
 from contfil.protocol import FlowTangent
 
 from ..kernels import bdf2_tangent as _kt
+from ..kernels import radau_solve as _ks
 from ..kernels import radau_step as _kr
 from ..kernels.geometry import frames_from_state, positions, state_from_frames, tangents
 from ..physics import FilamentPhysics, embed_planar, project_planar
@@ -76,6 +86,20 @@ CHORD_MAX = 4
 FLOOR = 100.0
 #: A predictor with a smaller scaled residual is taken without trying the next.
 PREDICTOR_OK = 0.05
+
+
+@functools.lru_cache(maxsize=4)
+def _method(stages: int) -> tuple[Array, ...]:
+    """``(c, W = A^-1, Eu, El, eigenvalues, eigenvectors of W and their
+    inverse)`` of the ``stages``-stage method, built once per process (read only)."""
+    c, A = _kr.radau_tableau(stages)
+    W = np.linalg.inv(A)
+    Eu, El = _extrapolation(c)
+    lam, T = np.linalg.eig(W)
+    out = (c, W, Eu, El, lam, T, np.linalg.inv(T))
+    for a in out:
+        a.setflags(write=False)
+    return out
 
 
 def _extrapolation(c: Array) -> tuple[Array, Array]:
@@ -148,22 +172,26 @@ class RadauStepper:
         self.max_iter = int(max_iter)
         self.rate = float(rate)
         self.reuse = bool(reuse)
-        c, A = _kr.radau_tableau(int(stages))
+        c, self.W, self._Eu, self._El, lam, T, Ti = _method(int(stages))
         self.s = c.size
         self.c = c
-        self.W = np.linalg.inv(A)
-        self._Eu, self._El = _extrapolation(c)
         if newton not in ("simplified", "full"):
             raise ValueError(f"RadauStepper: newton must be 'simplified' or 'full', got {newton!r}")
         self.newton = newton
-        lam, T = np.linalg.eig(self.W)
-        self._lam, self._T, self._Ti = lam, T, np.linalg.inv(T)
+        self._lam, self._T, self._Ti = lam, T, Ti
         N = phys.N
         self._zmap, self._rmap = _maps(N, phys.planar)
         self._scales = _kr.stage_scales(self.dt, self.W, self.par, N)
         self._q = np.empty((N, 4))
         self._Zf: Array | None = None  # physical stage unknowns of the last step
         self._lu: Callable[[Array], Array] | None = None
+        rules = np.zeros(_ks.N_RULES)
+        rules[_ks.R_BACK], rules[_ks.R_GROWTH] = MAX_BACKTRACK, GROWTH
+        rules[_ks.R_CHORD], rules[_ks.R_FLOOR] = CHORD_MAX, FLOOR
+        rules[_ks.R_PRED], rules[_ks.R_RATE] = PREDICTOR_OK, self.rate
+        self._rules = rules
+        #: the default solver (exact Newton, a fresh matrix every step) runs compiled
+        self._compiled = newton == "full" and not self.reuse
         self.k = 0
         #: per-step Newton iterations and Jacobian builds of the last run
         self.iterations: list[int] = []
@@ -212,12 +240,9 @@ class RadauStepper:
         the one with the smaller residual.
         """
         N = self.phys.N
-        s = self.s
         nu = 3 * (N - 1)
         if self._Zf is None:
-            lam = self.phys.constraint_loads(self._q, self.par)
-            Zf = np.zeros((s, 6 * N))
-            Zf[:, nu:] = lam
+            Zf = self._first_guess()
             return [np.ascontiguousarray((Zf / self._scales)[:, self._zmap])]
         Zx = np.empty_like(self._Zf)
         Zx[:, :nu] = self._Eu @ self._Zf[:, :nu]
@@ -227,6 +252,14 @@ class RadauStepper:
         Zc[:, nu:] = self._Zf[-1, nu:]
         return [np.ascontiguousarray((Zx / self._scales)[:, self._zmap]),
                 np.ascontiguousarray((Zc / self._scales)[:, self._zmap])]
+
+    def _first_guess(self) -> Array:
+        """Physical stage unknowns (s, 6N) of the first step's guess: no
+        motion, the loads of the continuous constraint problem."""
+        N = self.phys.N
+        Zf = np.zeros((self.s, 6 * N))
+        Zf[:, 3 * (N - 1):] = self.phys.constraint_loads(self._q, self.par)
+        return Zf
 
     def _physical(self, Z: Array) -> Array:
         N = self.phys.N
@@ -242,7 +275,9 @@ class RadauStepper:
     def _build(self, Z: Array) -> Callable[[Array], Array]:
         """The Newton matrix at the stage unknowns ``Z``, as a solver ``F -> dZ``.
 
-        ``newton="full"``: the exact stage Jacobian, one LU of ``s nz``.
+        ``newton="full"``: the exact stage Jacobian by blocks, solved by block
+        elimination (:mod:`~contfil.models.filament.kernels.radau_solve`: ``s``
+        LUs of ``nz`` and one of ``s nu``).
         ``newton="simplified"`` (default): every stage's derivatives frozen
         at the middle stage, so the matrix is ``W (x) M - dt I (x) K``; in
         the eigenbasis of ``W = T diag(lam) T^-1`` it splits into ``s``
@@ -252,8 +287,10 @@ class RadauStepper:
         Zf = self._physical(Z)
         shape = Z.shape
         if self.newton == "full":
-            lu = sla.lu_factor(self.jacobian(Zf, self._zmap, self._rmap)[0], check_finite=False)
-            return lambda F: sla.lu_solve(lu, F.ravel(), check_finite=False).reshape(shape)
+            solve = _block_solver(_kr.stage_blocks(
+                Zf, self._q, self.dt, self.W, self.par, self.par, self.phys.flags, self._zmap,
+                self._rmap, self._scales, False), self.W)
+            return lambda F: solve(F.reshape(shape[0], shape[1], 1)).reshape(shape)
         zm = self._zmap
         sc = self._scales[0].copy()
         sc[3 * (self.phys.N - 1):] /= self.W[0, 0]  # the loads' scale at g = 1
@@ -342,13 +379,67 @@ class RadauStepper:
         self._Zf = Zf
         self.k += 1
 
-    def step(self, n: int = 1) -> Array:
-        """Advance ``n`` steps and return the new state."""
+    def _advance(self, n: int) -> Array:
+        """``n`` steps; returns the last step's scaled stage unknowns (s, nz).
+
+        The default solver runs in one compiled call
+        (:func:`~contfil.models.filament.kernels.radau_solve.advance`, the
+        same rules as :meth:`_solve`), the others step by step in Python.
+        """
         if not self._ready:
             raise RuntimeError("RadauStepper: call reset(u) before stepping")
-        for _ in range(int(n)):
-            self._accept(self._solve())
+        s, nz = self.s, self._zmap.size
+        if not self._compiled:
+            Z = np.empty((s, nz))
+            for _ in range(int(n)):
+                Z = self._solve()
+                self._accept(Z)
+            return Z
+        have = self._Zf is not None
+        Zf = self._Zf if have else self._first_guess()
+        Z = np.empty((s, nz))
+        stats = np.zeros((max(int(n), 1), 2), dtype=np.int64)
+        info = np.zeros(3)
+        done = int(_ks.advance(int(n), self._q, Zf, have, self.dt, self.W, self._Eu, self._El,
+                               self.c, self.par, self.phys.flags, self._zmap, self._rmap,
+                               self._scales, self.tol, self.max_iter, self._rules, Z, stats,
+                               info))
+        if done > 0:
+            self._Zf = Zf
+        self.k += done
+        self.iterations.extend(int(v) for v in stats[:done, 0])
+        self.builds.extend(int(v) for v in stats[:done, 1])
+        if done < n:
+            res, its = float(info[1]), int(info[2])
+            raise (NonFiniteError if int(info[0]) == _ks.NONFINITE else ConvergenceError)(
+                f"Radau IIA step {self.k} (dt = {self.dt:.3g}): Newton did not converge, "
+                f"scaled residual {res:.3e} after {its} iterations (tol {self.tol:.1e})")
+        return Z
+
+    def step(self, n: int = 1) -> Array:
+        """Advance ``n`` steps and return the new state."""
+        self._advance(int(n))
         return self.state
+
+
+def _block_solver(blocks: tuple, W: Array) -> Callable[[Array], Array]:
+    """``B -> J^{-1} B`` (B (s, nz, k)) for the stage Jacobian given by
+    :func:`~contfil.models.filament.kernels.radau_step.stage_blocks`."""
+    Jd, K = blocks[0], blocks[1]
+    s, nz, nu = K.shape
+    piv = np.empty((s, nz), dtype=np.int32)
+    Gt = np.empty((s, nu, nz))
+    Cap = np.empty((s * nu, s * nu))
+    cpiv = np.empty(s * nu, dtype=np.int32)
+    if _ks.block_factor(Jd, K, W, piv, Gt, Cap, cpiv) != 0:
+        raise NonFiniteError("Radau IIA: singular stage Jacobian")
+
+    def solve(B: Array) -> Array:
+        X = np.array(B, dtype=float, order="C")
+        _ks.block_solve(Jd, K, W, piv, Gt, Cap, cpiv, X)
+        return X
+
+    return solve
 
 
 def default_radau_steps(T: float) -> int:
@@ -444,23 +535,19 @@ def flow_tangent(
         ddt[kdir] = 1.0 / n
     if want_p:
         ds[-1] = 1.0
-    nz = tz.size
     samp: list[Array] = []
     every = n // samples if samples else 0
     for k in range(n):
         if every and k % every == 0:
             samp.append(st.state)
-        Z = st._solve()
-        Zf = st._physical(Z)
-        J, Jth, c_dt, c_s, Bs, Rs = _kr.stage_jacobian(
-            Zf, st._q, st.dt, st.W, st_par, st_dpar, flags, tz, tr, st._scales, want_p)
+        qk = st._q.copy()
+        Z = st._advance(1)
         # (the stepper keeps its own Newton matrices, so phi is the flow's bit for bit)
-        lu = sla.lu_factor(J, check_finite=False)
-        rhs = Jth @ dth + np.outer(c_dt, ddt) + np.outer(c_s, ds)
-        dZ = -sla.lu_solve(lu, rhs, check_finite=False)
-        du_s = dZ[(st.s - 1) * nz:(st.s - 1) * nz + nu]
-        dth = Bs @ du_s + Rs @ dth
-        st._accept(Z)
+        try:
+            dth = _ks.tangent_step(st._physical(Z), qk, st.dt, st.W, st_par, st_dpar, flags,
+                                   tz, tr, st._scales, want_p, dth, ddt, ds)
+        except ZeroDivisionError as exc:
+            raise NonFiniteError(f"flow_tangent: {exc} at step {k}") from exc
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular stage Jacobian)")
     U1 = state_from_frames(st._q)

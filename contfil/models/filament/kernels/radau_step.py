@@ -34,10 +34,20 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .bdf2_residual import frames_at, full_unknowns, residual
-from .bdf2_tangent import INC_ANALYTIC, _step_system, reduced_counts
+from .bdf2_residual import C_G, frames_at, full_unknowns, residual, unpack_loads, velocities
+from .bdf2_tangent import (
+    INC_ANALYTIC,
+    _load_columns,
+    _reduced_block,
+    _segment_blocks,
+    _step_system,
+    dense_mobility,
+    reduced_counts,
+    residual_frame_jacobian,
+)
 from .effects import P_A, P_DL, P_ETA
 from .geometry import positions, tangents
+from .quaternion import dexp_inv_du
 
 
 def radau_tableau(s: int) -> tuple[np.ndarray, np.ndarray]:
@@ -164,6 +174,169 @@ def arm_matrix(t: np.ndarray, zmap: np.ndarray, rmap: np.ndarray, nu: int, npos:
 
 
 @njit(cache=True)
+def stage_blocks(
+    Zf: np.ndarray,
+    qk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    dpar: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+    want_p: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+           np.ndarray]:
+    """The exact stage Jacobian by blocks, at physical stage unknowns ``Zf`` (s, 6N).
+
+    Returns ``(Jd, K, Jth, c_dt, c_s, B_s, Rot_s)``: the diagonal blocks
+    ``Jd[i] = dF_i/dZ_i`` (s, nz, nz) (the BDF2 step Jacobians at ``g =
+    1/w_ii``) and the kinematic columns ``K[j]`` (s, nz, nu) of the
+    off-diagonal blocks, ``dF_i/dZ_j = (w_ij/w_ii) [K_j | 0]`` for ``j !=
+    i`` (the robot arm times ``dexp(u_j)`` on the position rows, the identity
+    on the orientation rows; no load columns); the rest as in
+    :func:`stage_jacobian`.
+    """
+    s = Zf.shape[0]
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nu, npos = reduced_counts(zmap, rmap, N)
+    dL = par[P_DL]
+    Jd = np.empty((s, nz, nz))
+    K = np.zeros((s, nz, nu))
+    Jth = np.zeros((s * nz, nu))
+    c_dt = np.empty(s * nz)
+    c_s = np.empty(s * nz)
+    xz = np.zeros((N, 3))
+    uz = np.zeros(6 * N)
+    Bs = np.empty((s, nu, nu))
+    Rs = np.empty((s, nu, nu))
+    Arms = np.empty((s, npos, nu))
+    for i in range(s):
+        Ji, Jthi, cdi, csi, Br, Rr, ti = _step_system(
+            Zf[i], qk, xz, xz, uz, _stage_coef(i, dt, W), par, dpar, flags, zmap, rmap,
+            scales[i], want_p, INC_ANALYTIC)
+        Jd[i] = Ji
+        o = i * nz
+        for a in range(nz):
+            for b in range(nu):
+                Jth[o + a, b] = Jthi[a, b]
+            c_dt[o + a] = cdi[a]
+            c_s[o + a] = csi[a]
+        Bs[i] = Br
+        Rs[i] = Rr
+        Arms[i] = arm_matrix(ti, zmap, rmap, nu, npos, dL)
+    # orientation row of each selected increment component (segment m+1, comp c)
+    rinv = -np.ones(6 * N, dtype=np.int64)
+    for a in range(nz):
+        rinv[rmap[a]] = a
+    for j in range(s):
+        AB = Arms[j] @ Bs[j]
+        for a in range(npos):
+            for b in range(nu):
+                K[j, a, b] = AB[a, b]
+        for b in range(nu):
+            a = rinv[3 * N + 3 * (zmap[b] // 3 + 1) + zmap[b] % 3]
+            if a >= 0:
+                K[j, a, b] += 1.0
+    # the history x^k enters row block i as -(sum_j w_ij/w_ii) x^k
+    # (the BDF2 Jth has no history term: its tangent adds -a1 dx^k itself)
+    Armk = arm_matrix(tangents(qk), zmap, rmap, nu, npos, dL)
+    for i in range(s):
+        wsum = 0.0
+        for j in range(s):
+            wsum += W[i, j] / W[i, i]
+        for a in range(npos):
+            for b in range(nu):
+                Jth[i * nz + a, b] -= wsum * Armk[a, b]
+        for j in range(s):
+            if j == i:
+                continue
+            w = W[i, j] / W[i, i]
+            AR = Arms[j] @ Rs[j]
+            for a in range(npos):
+                for b in range(nu):
+                    Jth[i * nz + a, b] += w * AR[a, b]
+    return Jd, K, Jth, c_dt, c_s, Bs[s - 1].copy(), Rs[s - 1].copy()
+
+
+@njit(cache=True)
+def newton_blocks(
+    Zf: np.ndarray,
+    qk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+    Jd: np.ndarray,
+    K: np.ndarray,
+) -> None:
+    """``Jd`` (s, nz, nz) and ``K`` (s, nz, nu) of :func:`stage_blocks` in
+    place, without what only the tangent needs (``dF/dth^k``, ``dF/ddt``,
+    ``dF/ds``): the Newton matrix of a step.
+
+    The diagonal blocks are assembled as :func:`.bdf2_tangent.step_matrices`
+    does (exact load columns; increment columns ``G dexp(u) + E``, ``G`` the
+    exact frame derivative, ``E`` the explicit ``u`` of the orientation
+    rows), from the same kernels; tests check both against each other.
+    """
+    s = Zf.shape[0]
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nu, npos = reduced_counts(zmap, rmap, N)
+    dL = par[P_DL]
+    rinv = -np.ones(6 * N, dtype=np.int64)
+    for a in range(nz):
+        rinv[rmap[a]] = a
+    q = np.empty((N, 4))
+    u = np.empty(3)
+    w = np.empty(3)
+    for i in range(s):
+        zf = Zf[i]
+        coef = _stage_coef(i, dt, W)
+        gdt = coef[C_G] * dt
+        frames_at(zf, qk, q)
+        t = tangents(q)
+        X = positions(t, dL)
+        Lam, Fc, Tc = unpack_loads(zf, N)
+        Mob = dense_mobility(X, par, flags)
+        B, A, _ = _segment_blocks(zf, N)
+        Jl = _load_columns(zf, t, coef, par, zmap, rmap, scales[i], nu, Mob, A)
+        for a in range(nz):
+            for b in range(nz - nu):
+                Jd[i, a, nu + b] = Jl[a, b]
+        _, Om = velocities(q, t, X, Lam, Fc, Tc, par, flags)
+        Br = _reduced_block(B, zmap, nu)
+        Ju = residual_frame_jacobian(zf, q, t, X, coef, par, flags, Mob, zmap, rmap, nu, A) @ Br
+        for a in range(nz):
+            for b in range(nu):
+                Jd[i, a, b] = Ju[a, b]
+        for b in range(nu):
+            m = zmap[b] // 3  # segment m + 1
+            c = zmap[b] % 3
+            for k in range(3):
+                u[k] = zf[3 * m + k]
+                w[k] = Om[m + 1, k]
+            D = dexp_inv_du(u, w)
+            for r in range(3):
+                a = rinv[3 * N + 3 * (m + 1) + r]
+                if a >= 0:
+                    Jd[i, a, b] += (1.0 if r == c else 0.0) - gdt * D[r, c]
+        AB = arm_matrix(t, zmap, rmap, nu, npos, dL) @ Br
+        for a in range(nz):
+            for b in range(nu):
+                K[i, a, b] = AB[a, b] if a < npos else 0.0
+        for b in range(nu):
+            a = rinv[3 * N + 3 * (zmap[b] // 3 + 1) + zmap[b] % 3]
+            if a >= 0:
+                K[i, a, b] += 1.0
+
+
+@njit(cache=True)
 def stage_jacobian(
     Zf: np.ndarray,
     qk: np.ndarray,
@@ -185,66 +358,27 @@ def stage_jacobian(
     for spatial rotations of the frames ``q^k``, ``c_dt = dF/ddt`` and
     ``c_s = dF/ds`` (s nz,) at fixed physical unknowns, and the reduced
     ``dexp(u_s)``, ``Rot(u_s)`` blocks of the last stage, which give the new
-    frames' perturbation ``dth^{k+1} = B_s du_s + Rot_s dth^k``.
+    frames' perturbation ``dth^{k+1} = B_s du_s + Rot_s dth^k``. The dense
+    assembly of :func:`stage_blocks` (the solvers use the blocks).
     """
     s = Zf.shape[0]
-    N = qk.shape[0]
     nz = zmap.shape[0]
-    nu, npos = reduced_counts(zmap, rmap, N)
-    dL = par[P_DL]
+    Jd, K, Jth, c_dt, c_s, Bs, Rs = stage_blocks(Zf, qk, dt, W, par, dpar, flags, zmap, rmap,
+                                                  scales, want_p)
+    nu = K.shape[2]
     J = np.zeros((s * nz, s * nz))
-    Jth = np.zeros((s * nz, nu))
-    c_dt = np.empty(s * nz)
-    c_s = np.empty(s * nz)
-    xz = np.zeros((N, 3))
-    uz = np.zeros(6 * N)
-    Bs = np.empty((s, nu, nu))
-    Rs = np.empty((s, nu, nu))
-    Arms = np.empty((s, npos, nu))
     for i in range(s):
-        Ji, Jthi, cdi, csi, Br, Rr, ti = _step_system(
-            Zf[i], qk, xz, xz, uz, _stage_coef(i, dt, W), par, dpar, flags, zmap, rmap,
-            scales[i], want_p, INC_ANALYTIC)
-        o = i * nz
         for a in range(nz):
             for b in range(nz):
-                J[o + a, o + b] = Ji[a, b]
-            for b in range(nu):
-                Jth[o + a, b] = Jthi[a, b]
-            c_dt[o + a] = cdi[a]
-            c_s[o + a] = csi[a]
-        Bs[i] = Br
-        Rs[i] = Rr
-        Arms[i] = arm_matrix(ti, zmap, rmap, nu, npos, dL)
-    # orientation row of each selected increment component (segment m+1, comp c)
-    rinv = -np.ones(6 * N, dtype=np.int64)
-    for a in range(nz):
-        rinv[rmap[a]] = a
-    # the history x^k enters row block i as -(sum_j w_ij/w_ii) x^k
-    # (the BDF2 Jth has no history term: its tangent adds -a1 dx^k itself)
-    Armk = arm_matrix(tangents(qk), zmap, rmap, nu, npos, dL)
-    for i in range(s):
-        wsum = 0.0
-        for j in range(s):
-            wsum += W[i, j] / W[i, i]
-        for a in range(npos):
-            for b in range(nu):
-                Jth[i * nz + a, b] -= wsum * Armk[a, b]
+                J[i * nz + a, i * nz + b] = Jd[i, a, b]
         for j in range(s):
             if j == i:
                 continue
             w = W[i, j] / W[i, i]
-            AB = Arms[j] @ Bs[j]
-            AR = Arms[j] @ Rs[j]
-            for a in range(npos):
+            for a in range(nz):
                 for b in range(nu):
-                    J[i * nz + a, j * nz + b] += w * AB[a, b]
-                    Jth[i * nz + a, b] += w * AR[a, b]
-            for b in range(nu):
-                a = rinv[3 * N + 3 * (zmap[b] // 3 + 1) + zmap[b] % 3]
-                if a >= 0:
-                    J[i * nz + a, j * nz + b] += w
-    return J, Jth, c_dt, c_s, Bs[s - 1].copy(), Rs[s - 1].copy()
+                    J[i * nz + a, j * nz + b] += w * K[j, a, b]
+    return J, Jth, c_dt, c_s, Bs, Rs
 
 
 @njit(cache=True)
