@@ -36,6 +36,9 @@ of ``rpy_derivative`` (``rpy_apply_jacobian(X, a, eta, F, T) -> (6N, 3N)``,
 elastic moments, squirming, follower and constraint loads).
 ``radau_step``: the stage equations of the geometric Radau IIA step (each
 stage is the BDF2 residual at other coefficients) and their exact Jacobian.
+``radau_solve``: the stage Newton system by block elimination (one LU per
+stage block and one of the coupling unknowns, LAPACK through numba), the
+compiled Radau step loop and the compiled tangent step.
 Units: L = 1, K_B = 1, eta = 1.
 """
 
