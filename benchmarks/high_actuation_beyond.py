@@ -19,7 +19,10 @@ Options: ``--spec``/``--run`` take another study and its stored run (default
 ``branches/<model>_high.toml`` and ``branches/data/<model>_high/``, e.g.
 the Radau studies ``branches/tip_ff_high_radau.toml``); ``--seed`` the
 random push (a class that changes with the seed is not settled: rerun
-longer); ``--steps`` the BDF2 steps per period of the starting orbit.
+longer); ``--steps`` the BDF2 steps per period of the starting orbit;
+``--index`` the start point on the branch (default the one nearest ``--p``:
+on a branch through folds, e.g. tip SF's beating -> inter-beating ->
+buckled-beating in ``tip_sf_high2``, that may be the wrong state).
 
 Prints the label, its evidence and one JSON line.
 """
@@ -61,13 +64,19 @@ def main() -> None:
                     help="stored run (default branches/data/<spec name>/)")
     ap.add_argument("--seed", type=int, default=5, help="seed of the out-of-plane push")
     ap.add_argument("--steps", type=int, default=400, help="BDF2 steps per period")
+    ap.add_argument("--index", type=int, default=None,
+                    help="start from this point of the branch (default: the point nearest --p; "
+                         "a branch through folds passes a parameter several times)")
     args = ap.parse_args()
     spec_path = args.spec or ROOT / "branches" / f"{args.model}_high.toml"
     run = args.run or spec_path.parent / "data" / spec_path.stem
     model = build_model(load_spec(spec_path)).model
     g = load_run_graph(run)
     br = g.branch(args.branch)
-    k = int(np.argmin([abs(pt.p - args.p) for pt in br.points]))
+    if args.index is None:
+        k = int(np.argmin([abs(pt.p - args.p) for pt in br.points]))
+    else:
+        k = int(args.index)
     pt = br.points[k]
     T = float(pt.extra["period"])
     steps = int(args.steps)
