@@ -300,3 +300,48 @@ def test_four_torus_is_not_chaotic_when_the_exponent_is_zero() -> None:
     # Without the exponent the same evidence falls back to the last rule.
     res_s = classify_attractor(_rk4(TORUS4, h), u0, 40_000, h, transient=200, observable=obs)
     assert res_s.label == "chaotic", res_s.reasons
+
+
+def _torus2_samples(n: int, dt: float):  # exact 2-torus flow, angular frequencies 1, sqrt 2
+    w = np.array(W4[:2])
+    for k in range(n):
+        ph = w * k * dt
+        yield np.r_[np.cos(ph), np.sin(ph)]
+
+
+def test_aliased_lines_of_a_sampled_torus_are_explained() -> None:
+    """A 2-torus sampled below twice its highest lines: 3 f2 = 0.675 and
+    4 f1 = 0.637 lie above the Nyquist frequency 0.5 and appear at their
+    aliases fs - 3 f2 = 0.325 and fs - 4 f1 = 0.363. Both are combinations
+    of the two bases once folded, so the torus is quasiperiodic on its two
+    frequencies; unfolded, one alias was taken as a third base and the
+    other left unexplained, and a discrete spectrum with a peak left over
+    and no Lyapunov exponent is labelled chaotic."""
+    dt = 1.0
+    obs = lambda u: u[0] + u[1] + 0.5 * u[0] * u[1] + 0.4 * u[1] ** 3 + 0.3 * u[0] ** 4  # noqa: E731
+    res = classify_samples(_torus2_samples(60_000, dt), dt, 60_000, observable=obs)
+    assert res.spectrum is not None
+    sp = res.spectrum
+    df = sp.frequencies[1]
+    f1, f2 = W4[0] / (2 * np.pi), W4[1] / (2 * np.pi)
+    assert sp.discrete_fraction > 0.98
+    for alias in (1 / dt - 3 * f2, 1 / dt - 4 * f1):  # the aliases are there
+        assert np.min(np.abs(sp.peaks - alias)) < df
+    assert res.label == "quasiperiodic", res.reasons
+    np.testing.assert_allclose(np.sort(sp.bases), [f1, f2], atol=df)
+    assert sp.explained.all()
+    # The same peaks without folding: the alias is left unexplained.
+    _, expl = integer_combinations(sp.peaks, df, max_bases=2)
+    assert not expl.all()
+    # Folding does not turn chaos into a torus: Lorenz sampled coarsely
+    # (every 10 RK4 steps, Nyquist 5) keeps its broadband spectrum.
+    h = 0.01
+    step = _rk4(LORENZ, h)
+
+    def lorenz10(u: np.ndarray) -> np.ndarray:
+        for _ in range(10):
+            u = step(u)
+        return u
+
+    ch = classify_attractor(lorenz10, [1.0, 1.0, 20.0], 8000, 10 * h, transient=200)
+    assert ch.label == "chaotic", ch.reasons
