@@ -40,8 +40,8 @@ Labels, tested in this order:
     the spectrum is discrete (its prominent peaks hold >= ``discrete_power``
     of the power) and all peaks are integer combinations of two or three base
     frequencies; or the spectrum is discrete, two bases explain its leading
-    peaks but not all, and the Lyapunov exponent (if computed) is not
-    positive;
+    peaks but not all (a further frequency), and the Lyapunov exponent, if
+    computed, is not positive;
 ``chaotic``
     otherwise (broadband spectrum and many section points).
 """
@@ -753,12 +753,12 @@ def _label(
         )
         if spectrum.discrete_fraction >= discrete_power and allx and nb >= 1:
             spec_kind = "periodic" if nb == 1 else "quasiperiodic"
-        elif (spectrum.discrete_fraction >= discrete_power and nb >= 2 and lyap is not None
-              and lyap.exponent <= max(3 * lyap.error, lyap_tol)):
+        elif spectrum.discrete_fraction >= discrete_power and nb >= 2:
             # A discrete spectrum whose weak peaks need more bases (or higher
-            # orders) than the capped search allows, with a Lyapunov exponent
-            # that is not positive: chaos would need both a broadband
-            # spectrum and a positive exponent, and shows neither.
+            # orders) than the capped search allows. A positive exponent has
+            # already returned "chaotic" above; without one, chaos would need
+            # a broadband spectrum, and a peak left unexplained is not
+            # broadband (it is one more line: a further frequency).
             spec_kind = "quasiperiodic_unresolved"
     # Periodic: a few tight clusters, each visited repeatedly.
     if nc >= 3 and 1 <= nd <= max_period and section.recent.shape[0] >= 3 * nd:
@@ -771,9 +771,10 @@ def _label(
     if spec_kind == "quasiperiodic_unresolved":
         assert spectrum is not None
         n_x = int(spectrum.explained.sum())
+        expo = "an exponent that is not positive" if lyap is not None else "no exponent"
         return "quasiperiodic", reasons + [
             f"discrete spectrum ({spectrum.discrete_fraction:.4f} of the power in peaks) and "
-            f"an exponent that is not positive; {n_x} of {spectrum.peaks.size} peaks are "
+            f"{expo}; {n_x} of {spectrum.peaks.size} peaks are "
             f"combinations of the bases (a further frequency or higher orders explain the rest)"]
     if spec_kind == "periodic" and nc >= 3:
         # Section says many points but the spectrum one base: a slow drift or
