@@ -19,7 +19,12 @@ Options: ``--spec``/``--run`` take another study and its stored run (default
 ``branches/<model>_high.toml`` and ``branches/data/<model>_high/``, e.g.
 the Radau studies ``branches/tip_ff_high_radau.toml``); ``--seed`` the
 random push (a class that changes with the seed is not settled: rerun
-longer); ``--steps`` the BDF2 steps per period of the starting orbit.
+longer); ``--steps`` the BDF2 steps per period of the starting orbit;
+``--from-log`` stores (``--store``) the result an earlier run printed,
+without simulating again; ``--index`` the start point on the branch
+(default the one nearest ``--p``: on a branch through folds, e.g. tip SF's
+beating -> inter-beating -> buckled-beating in ``tip_sf_high2``, that may
+be the wrong state).
 
 Prints the label, its evidence and one JSON line.
 """
@@ -61,13 +66,25 @@ def main() -> None:
                     help="stored run (default branches/data/<spec name>/)")
     ap.add_argument("--seed", type=int, default=5, help="seed of the out-of-plane push")
     ap.add_argument("--steps", type=int, default=400, help="BDF2 steps per period")
+    ap.add_argument("--index", type=int, default=None,
+                    help="start from this point of the branch (default: the point nearest --p; "
+                         "a branch through folds passes a parameter several times)")
+    ap.add_argument("--from-log", type=Path, default=None,
+                    help="no simulation: store (with --store) the result printed by an earlier "
+                         "run of this script (its output file, last JSON line)")
     args = ap.parse_args()
+    if args.from_log is not None:
+        _store_logged(args)
+        return
     spec_path = args.spec or ROOT / "branches" / f"{args.model}_high.toml"
     run = args.run or spec_path.parent / "data" / spec_path.stem
     model = build_model(load_spec(spec_path)).model
     g = load_run_graph(run)
     br = g.branch(args.branch)
-    k = int(np.argmin([abs(pt.p - args.p) for pt in br.points]))
+    if args.index is None:
+        k = int(np.argmin([abs(pt.p - args.p) for pt in br.points]))
+    else:
+        k = int(args.index)
     pt = br.points[k]
     T = float(pt.extra["period"])
     steps = int(args.steps)
@@ -98,15 +115,39 @@ def main() -> None:
           f"reasons {ev['reasons']}; Lyapunov {ev.get('lyapunov')} ± {ev.get('lyapunov_error')}",
           flush=True)
     if args.store:
-        # re-read: another classification may have stored its state meanwhile
-        g = load_run_graph(run)
-        sid = g.add_state(res.label, br.param, args.p, ev,
-                          born_from=args.born_from or args.branch,
-                          index=None if args.born_from else k)
-        save_graph_json(g, run / "graph.json")
-        if (run / "graph.graphml").exists():
-            save_graph_graphml(g, run / "graph.graphml")
-        out["state"] = {"id": sid, "label": g.state(sid)["label"]}
+        out["state"] = _store(run, br.param, res.label, args.p, ev, args.born_from,
+                              args.branch, k)
+    print(json.dumps(out, default=str))
+
+
+def _store(run: Path, param: str, label: str, p: float, ev: dict, born_from: str | None,
+           branch: str, k: int) -> dict:
+    """Add the classified state to the stored graph of ``run``; its id and label."""
+    # re-read: another classification may have stored its state meanwhile
+    g = load_run_graph(run)
+    sid = g.add_state(label, param, p, ev, born_from=born_from or branch,
+                      index=None if born_from else k)
+    save_graph_json(g, run / "graph.json")
+    if (run / "graph.graphml").exists():
+        save_graph_graphml(g, run / "graph.graphml")
+    return {"id": sid, "label": g.state(sid)["label"]}
+
+
+def _store_logged(args: argparse.Namespace) -> None:
+    """``--from-log``: store the result an earlier run printed (no simulation)."""
+    lines = [ln for ln in args.from_log.read_text().splitlines() if ln.startswith("{")]
+    if not lines:
+        raise SystemExit(f"{args.from_log}: no JSON result line")
+    out = json.loads(lines[-1])
+    ev = out["evidence"]
+    run = Path(ev["run"])
+    if not run.is_absolute():
+        run = ROOT / run
+    if not args.store:
+        raise SystemExit("--from-log only stores: add --store")
+    param = load_run_graph(run).branch(ev["start_branch"]).param
+    out["state"] = _store(run, param, out["label"], float(out["p"]), ev, args.born_from,
+                          ev["start_branch"], int(ev["start_index"]))
     print(json.dumps(out, default=str))
 
 

@@ -199,6 +199,18 @@ def main() -> None:
     cls = classify_samples(iter(states), dt * a.sample_every, n,
                            observable=lambda u: tip_position(model, u), lyapunov=lyap)
     node = state_node_data(cls, model, p, {"source": "benchmarks/qp2_coils.py"})
+    # the spectrum and section alone (what the label is without an exponent),
+    # and the peaks the bases leave unexplained
+    cls0 = cls if lyap is None else classify_samples(
+        iter(states), dt * a.sample_every, n, observable=lambda u: tip_position(model, u))
+    spec0 = cls0.spectrum
+    spectrum_only = {
+        "label": cls0.label, "reasons": list(cls0.reasons),
+        "n_peaks": 0 if spec0 is None else int(spec0.peaks.size),
+        "unexplained_peaks": [] if spec0 is None
+        else [float(f) for f in spec0.peaks[~spec0.explained]],
+        "nyquist": 0.5 / (dt * a.sample_every),
+    }
     out_of_plane = float(np.sqrt(np.mean(states[:, 0::3] ** 2)))
     in_plane = float(np.sqrt(np.mean(states[:, 1::3] ** 2)))
     duration = float(ts[-1] - ts[0])
@@ -235,6 +247,7 @@ def main() -> None:
         "mixed_handedness_fraction": float(np.mean([(h > 0).any() and (h < 0).any()
                                                     for h in H])) if H.size else None,
         "classification": node,
+        "classification_without_lyapunov": spectrum_only,
         "lyapunov": None if lyap is None else {
             "exponent": lyap.exponent, "error": lyap.error, "maps": a.lyapunov_maps,
             "per_period": lyap.exponent * T_meas, "tail_spread": lyap.tail_spread},

@@ -19,7 +19,7 @@ from contfil.errors import ContfilError
 
 # One cached integrator for all test systems (an integer picks the vector
 # field): compiled once, reused across runs.
-STUART_LANDAU, DAMPED, VAN_DER_POL, TORUS, LORENZ, TORUS4 = range(6)
+STUART_LANDAU, DAMPED, VAN_DER_POL, TORUS, LORENZ, TORUS4, ROSSLER = range(7)
 # Angular frequencies of the 4-torus: rationally independent.
 W4 = (1.0, np.sqrt(2.0), np.sqrt(3.0), np.sqrt(5.0))
 
@@ -60,6 +60,9 @@ def _rhs(system: int, u: np.ndarray) -> np.ndarray:
             out[2 * j] = (1.0 - r) * x - w * y
             out[2 * j + 1] = (1.0 - r) * y + w * x
         return out
+    if system == ROSSLER:
+        # Rossler (a, b, c) = (0.2, 0.2, 5.7): phase-coherent chaos.
+        return np.array([-u[1] - u[2], u[0] + 0.2 * u[1], 0.2 + u[2] * (u[0] - 5.7)])
     # Lorenz (10, 28, 8/3)
     return np.array([10.0 * (u[1] - u[0]), u[0] * (28.0 - u[2]) - u[1],
                      u[0] * u[1] - 8.0 / 3.0 * u[2]])
@@ -297,6 +300,71 @@ def test_four_torus_is_not_chaotic_when_the_exponent_is_zero() -> None:
     assert not res.spectrum.explained.all()  # a fourth frequency is left over
     assert res.label == "quasiperiodic", res.reasons
     assert "not positive" in res.reasons[-1]
-    # Without the exponent the same evidence falls back to the last rule.
+    # Without the exponent the discrete spectrum decides the same: a line
+    # left unexplained is one more frequency, not a broadband spectrum.
     res_s = classify_attractor(_rk4(TORUS4, h), u0, 40_000, h, transient=200, observable=obs)
+    assert res_s.label == "quasiperiodic", res_s.reasons
+    assert "no exponent" in res_s.reasons[-1]
+
+
+def _torus2_samples(n: int, dt: float):  # exact 2-torus flow, angular frequencies 1, sqrt 2
+    w = np.array(W4[:2])
+    for k in range(n):
+        ph = w * k * dt
+        yield np.r_[np.cos(ph), np.sin(ph)]
+
+
+def test_aliased_lines_of_a_sampled_torus_are_explained() -> None:
+    """A 2-torus sampled below twice its highest lines: 3 f2 = 0.675 and
+    4 f1 = 0.637 lie above the Nyquist frequency 0.5 and appear at their
+    aliases fs - 3 f2 = 0.325 and fs - 4 f1 = 0.363. Both are combinations
+    of the two bases once folded, so the torus is quasiperiodic on its two
+    frequencies; unfolded, one alias was taken as a third base and the
+    other left unexplained (and the label fell to chaotic, decision 31)."""
+    dt = 1.0
+    obs = lambda u: u[0] + u[1] + 0.5 * u[0] * u[1] + 0.4 * u[1] ** 3 + 0.3 * u[0] ** 4  # noqa: E731
+    res = classify_samples(_torus2_samples(60_000, dt), dt, 60_000, observable=obs)
+    assert res.spectrum is not None
+    sp = res.spectrum
+    df = sp.frequencies[1]
+    f1, f2 = W4[0] / (2 * np.pi), W4[1] / (2 * np.pi)
+    assert sp.discrete_fraction > 0.98
+    for alias in (1 / dt - 3 * f2, 1 / dt - 4 * f1):  # the aliases are there
+        assert np.min(np.abs(sp.peaks - alias)) < df
+    assert res.label == "quasiperiodic", res.reasons
+    np.testing.assert_allclose(np.sort(sp.bases), [f1, f2], atol=df)
+    assert sp.explained.all()
+    # The same peaks without folding: the alias is left unexplained.
+    _, expl = integer_combinations(sp.peaks, df, max_bases=2)
+    assert not expl.all()
+    # Folding does not turn chaos into a torus: Lorenz sampled coarsely
+    # (every 10 RK4 steps, Nyquist 5) keeps its broadband spectrum.
+    h = 0.01
+    step = _rk4(LORENZ, h)
+
+    def lorenz10(u: np.ndarray) -> np.ndarray:
+        for _ in range(10):
+            u = step(u)
+        return u
+
+    ch = classify_attractor(lorenz10, [1.0, 1.0, 20.0], 8000, 10 * h, transient=200)
+    assert ch.label == "chaotic", ch.reasons
+
+
+def test_rossler_phase_coherent_chaos() -> None:
+    """Rossler (0.2, 0.2, 5.7): chaos with sharp spectral peaks (phase
+    coherent), largest exponent 0.0714 (Sprott, *Chaos and Time-Series
+    Analysis*, 2003, appendix A). Chaotic with the exponent, and without it
+    by the broadband share of its spectrum, though two bases explain every
+    peak: a discrete-looking spectrum must not be called quasiperiodic when
+    its power is not in the peaks."""
+    h = 0.05
+    res = classify_attractor(_rk4(ROSSLER, h), [1.0, 1.0, 0.0], 40_000, h, transient=2000,
+                             lyapunov_steps=60_000)
+    assert res.label == "chaotic", res.reasons
+    assert res.lyapunov is not None
+    assert res.lyapunov.exponent > 3 * res.lyapunov.error
+    assert abs(res.lyapunov.exponent - 0.0714) < 0.015
+    res_s = classify_attractor(_rk4(ROSSLER, h), [1.0, 1.0, 0.0], 40_000, h, transient=2000)
+    assert res_s.spectrum is not None and res_s.spectrum.discrete_fraction < 0.98
     assert res_s.label == "chaotic", res_s.reasons

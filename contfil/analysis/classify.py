@@ -40,8 +40,8 @@ Labels, tested in this order:
     the spectrum is discrete (its prominent peaks hold >= ``discrete_power``
     of the power) and all peaks are integer combinations of two or three base
     frequencies; or the spectrum is discrete, two bases explain its leading
-    peaks but not all, and the Lyapunov exponent (if computed) is not
-    positive;
+    peaks but not all (a further frequency), and the Lyapunov exponent, if
+    computed, is not positive;
 ``chaotic``
     otherwise (broadband spectrum and many section points).
 """
@@ -228,7 +228,7 @@ def spectral_peaks(
 
 def integer_combinations(
     peaks: Vec, df: float, max_order: int = 8, max_harmonic: int = 64, max_bases: int = 3,
-    max_order_3: int = 6, max_coverage: float = 0.2,
+    max_order_3: int = 6, max_coverage: float = 0.2, fs: float | None = None,
 ) -> tuple[Vec, NDArray[np.bool_]]:
     """Base frequencies (at most ``max_bases``) and which peaks are integer
     combinations ``|m f1 + n f2 + k f3|`` of them.
@@ -247,10 +247,16 @@ def integer_combinations(
     ``max_coverage`` of the frequency axis up to the highest peak
     (:func:`combination_coverage`): at that resolution it would explain a
     peak at any frequency.
+
+    ``fs``, the sampling frequency of the series (``1 / sample_dt``), folds
+    the combinations between the Nyquist frequency ``fs/2`` and ``fs`` as
+    sampling does: such a line appears at ``fs - f`` and is explained as
+    that alias, not taken as a new base (without ``fs`` no folding).
     """
     if peaks.size == 0:
         return np.empty(0), np.zeros(0, dtype=bool)
-    orders = {"max_order": max_order, "max_harmonic": max_harmonic, "max_order_3": max_order_3}
+    orders = {"max_order": max_order, "max_harmonic": max_harmonic, "max_order_3": max_order_3,
+              "fs": fs}
 
     def explained(bases: list[float]) -> NDArray[np.bool_]:
         freq, tol = _combinations(np.asarray(bases), df, **orders)
@@ -273,13 +279,15 @@ def integer_combinations(
 
 def _combinations(
     bases: Vec, df: float, max_order: int = 8, max_harmonic: int = 64, max_order_3: int = 6,
+    fs: float | None = None,
 ) -> tuple[Vec, Vec]:
     """The combination frequencies ``|m f1 + n f2 + k f3|`` that
     :func:`integer_combinations` accepts for ``bases``, and the tolerance of
     each, ``df (0.75 + 0.1 (|m| + |n| + |k|))``.
 
     One base: harmonics ``1..max_harmonic``; two: ``|m|, |n| <= max_order``;
-    three: ``|m| + |n| + |k| <= max_order_3``.
+    three: ``|m| + |n| + |k| <= max_order_3``. With a sampling frequency
+    ``fs`` those in ``(fs/2, fs)`` are folded to their alias ``fs - f``.
     """
     if bases.size == 1:
         ms = np.arange(1, max_harmonic + 1)[:, None]
@@ -289,22 +297,31 @@ def _combinations(
         ms = np.stack([g.ravel() for g in grids], axis=1)
         if bases.size >= 3:
             ms = ms[np.abs(ms).sum(axis=1) <= span]
-    return np.abs(ms @ bases), df * (0.75 + 0.1 * np.abs(ms).sum(axis=1))
+    freq = np.abs(ms @ bases)
+    tol = df * (0.75 + 0.1 * np.abs(ms).sum(axis=1))
+    if fs is not None and np.isfinite(fs) and fs > 0:
+        # One fold only: lines between fs/2 and fs appear at fs - f. Lines
+        # above fs (weaker still in a smooth signal) are left out: folding
+        # them all would fill [0, fs/2] densely with the many harmonics of
+        # one base and explain any peak.
+        keep = freq < fs
+        freq, tol = np.minimum(freq[keep], fs - freq[keep]), tol[keep]
+    return freq, tol
 
 
 def combination_coverage(
     bases: list[float] | Vec, df: float, fmax: float, max_order: int = 8,
-    max_harmonic: int = 64, max_order_3: int = 6,
+    max_harmonic: int = 64, max_order_3: int = 6, fs: float | None = None,
 ) -> float:
     """Share of ``(0, fmax]`` within tolerance of some combination of ``bases``
-    that :func:`integer_combinations` accepts (:func:`_combinations`): the
-    chance that a peak at a random frequency is "explained" (its
-    false-positive rate).
+    that :func:`integer_combinations` accepts (:func:`_combinations`, folded
+    about ``fs/2`` when ``fs`` is given): the chance that a peak at a random
+    frequency is "explained" (its false-positive rate).
     """
     b = np.asarray(bases, dtype=float)
     if b.size == 0 or fmax <= 0:
         return 0.0
-    freq, tol = _combinations(b, df, max_order, max_harmonic, max_order_3)
+    freq, tol = _combinations(b, df, max_order, max_harmonic, max_order_3, fs)
     keep = (freq > 0) & (freq <= fmax * 1.01)
     lo = np.maximum(freq[keep] - tol[keep], 0.0)
     hi = np.minimum(freq[keep] + tol[keep], fmax)
@@ -390,8 +407,10 @@ def _spectrum(welch_acc: _StreamingWelch | None, sample_dt: float) -> SpectrumEv
     for i in idx:
         mask[max(i - 3, 0): i + 4] = True
     frac = float(psd[mask].sum() / total)
-    bases, expl = integer_combinations(peaks, df)
-    chance = combination_coverage(bases, df, float(peaks.max())) if peaks.size else 0.0
+    # The series is sampled: lines above the Nyquist frequency fold back.
+    fs = 1.0 / sample_dt
+    bases, expl = integer_combinations(peaks, df, fs=fs)
+    chance = combination_coverage(bases, df, float(peaks.max()), fs=fs) if peaks.size else 0.0
     return SpectrumEvidence(f, psd, peaks, bases, expl, frac, sample_dt, chance)
 
 
@@ -734,12 +753,12 @@ def _label(
         )
         if spectrum.discrete_fraction >= discrete_power and allx and nb >= 1:
             spec_kind = "periodic" if nb == 1 else "quasiperiodic"
-        elif (spectrum.discrete_fraction >= discrete_power and nb >= 2 and lyap is not None
-              and lyap.exponent <= max(3 * lyap.error, lyap_tol)):
+        elif spectrum.discrete_fraction >= discrete_power and nb >= 2:
             # A discrete spectrum whose weak peaks need more bases (or higher
-            # orders) than the capped search allows, with a Lyapunov exponent
-            # that is not positive: chaos would need both a broadband
-            # spectrum and a positive exponent, and shows neither.
+            # orders) than the capped search allows. A positive exponent has
+            # already returned "chaotic" above; without one, chaos would need
+            # a broadband spectrum, and a peak left unexplained is not
+            # broadband (it is one more line: a further frequency).
             spec_kind = "quasiperiodic_unresolved"
     # Periodic: a few tight clusters, each visited repeatedly.
     if nc >= 3 and 1 <= nd <= max_period and section.recent.shape[0] >= 3 * nd:
@@ -752,9 +771,10 @@ def _label(
     if spec_kind == "quasiperiodic_unresolved":
         assert spectrum is not None
         n_x = int(spectrum.explained.sum())
+        expo = "an exponent that is not positive" if lyap is not None else "no exponent"
         return "quasiperiodic", reasons + [
             f"discrete spectrum ({spectrum.discrete_fraction:.4f} of the power in peaks) and "
-            f"an exponent that is not positive; {n_x} of {spectrum.peaks.size} peaks are "
+            f"{expo}; {n_x} of {spectrum.peaks.size} peaks are "
             f"combinations of the bases (a further frequency or higher orders explain the rest)"]
     if spec_kind == "periodic" and nc >= 3:
         # Section says many points but the spectrum one base: a slow drift or

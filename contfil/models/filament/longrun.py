@@ -205,7 +205,8 @@ def _summary(res: AttractorClass) -> dict[str, Any]:
         scale = float(np.max(np.abs(res.invariant_mean))) or 1.0
         ev["invariant_rel_std"] = float(np.max(res.invariant_std) / scale)
     if res.lyapunov is not None:
-        ev.update(lyapunov=float(res.lyapunov.exponent), lyapunov_error=float(res.lyapunov.error))
+        ev.update(lyapunov=float(res.lyapunov.exponent), lyapunov_error=float(res.lyapunov.error),
+                  lyapunov_block_means=[float(b) for b in res.lyapunov.block_means])
     return ev
 
 
