@@ -184,8 +184,8 @@ def test_spec_key_reaches_the_engine_settings():
 
     base = '[model]\nname = "z2_pitchfork"\n[continuation]\nparameter = "mu"\n' \
            'range = [-1.0, 1.0]\n'
-    assert engine_settings(loads_spec(base)).error_estimates == "special"
-    for mode in ("off", "special", "points", "full"):
+    assert engine_settings(loads_spec(base)).error_estimates == "periods"
+    for mode in ("off", "special", "periods", "points", "full"):
         spec = loads_spec(base + f'error_estimates = "{mode}"\n')
         assert spec.continuation["error_estimates"] == mode
         assert engine_settings(spec).error_estimates == mode
