@@ -241,3 +241,47 @@ def test_multiple_shooting_points_carry_the_period_error_of_the_refined_segments
     assert abs(true) > 1e-12  # resolved above round-off
     assert -pt.accuracy["period_error"] / true == pytest.approx(1 - 2.0 ** -5, rel=0.05)
     assert pt.accuracy["error_order"] == 5.0
+
+
+@pytest.mark.parametrize("method,steps,ratio", [("heun", 40, 0.75), ("radau", 6, 31 / 32)])
+def test_periods_mode_every_point_its_period_error_multipliers_from_a_recent_point(
+        method, steps, ratio):
+    """The default ``"periods"``: every point's period error (chords on the
+    coarse Jacobian) is the same fine - coarse as Newton's; the multiplier
+    error is a point's own (age 0) where the fine multipliers were computed
+    and is carried, with its source, to the points in between."""
+    sl = stuart_landau(mu=0.5, b=0.3)
+    m = sl if method == "radau" else FixedStep(sl, method, steps)
+    pb = PeriodicOrbitProblem(m, "mu", steps=steps)
+    ex = exact_cycle(0.5, b=0.3)
+    s = ContinuationSettings(ds=0.05, max_points=14, p_max=3.0)
+    assert s.error_estimates == "periods"  # the default
+    br = Continuation(pb, np.array([ex["r"], 0.0, ex["period"]]), 0.5, s).run()
+    ps = {pt.p: pt for pt in br.points}
+    ages = []
+    for pt in br.points:
+        e = exact_cycle(pt.p, b=0.3)
+        true_T = e["period"] - pt.extra["period"]
+        assert pt.accuracy["period_error"] / true_T == pytest.approx(ratio, rel=0.1)
+        # the same estimate as Newton's on the fine problem (to its 1e-4)
+        newton = point_errors(pb, pb_x(pb, pt), pt.p, s)["period_error"]
+        assert pt.accuracy["period_error"] == pytest.approx(newton, rel=1e-3)
+        age = int(pt.accuracy["multiplier_error_age"])
+        src = ps[pt.accuracy["multiplier_error_p"]]  # a point of the branch
+        assert src.accuracy["multiplier_error_age"] == 0.0
+        assert pt.accuracy["multiplier_error"] == src.accuracy["multiplier_error"]
+        true_mu = abs(pt.eigenvalues[~pt.trivial][0] - e["multiplier"])
+        r = pt.accuracy["multiplier_error"] / true_mu
+        if age == 0:
+            assert 0.5 < r < 2.0  # its own: as in "points"
+        else:
+            # carried: the source's error, within what the error varies over
+            # the few points in between on this branch (x2.2 measured)
+            assert 0.4 < r < 2.5
+        ages.append(age)
+    assert max(ages) >= 2 and ages.count(0) < len(ages)  # some carried, some own
+
+
+def pb_x(pb, pt):
+    """The unknowns of point ``pt`` of single shooting (state, period)."""
+    return np.append(pt.u, pt.extra["period"])

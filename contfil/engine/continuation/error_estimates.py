@@ -27,10 +27,15 @@ same fine - coarse as above. The fine multipliers (the expensive part: a fine
 tangent sweep, and for a subspace solve the full model's out-of-subspace
 block) are computed at special points, at the first point of a run and
 again after :data:`MULTIPLIER_EVERY` points or once the leading coarse
-multipliers moved by more than :data:`MULTIPLIER_MOVE` from where they were
-last computed; the points in between carry that ``multiplier_error`` with
+multipliers moved by more than :data:`MULTIPLIER_MOVE` (or
+:data:`MULTIPLIER_MOVE_REL` of their modulus) from where they were last
+computed; the points in between carry that ``multiplier_error`` with
 ``multiplier_error_p`` (the parameter of the point it was computed at) and
-``multiplier_error_age`` (points back; 0: its own).
+``multiplier_error_age`` (points back; 0: its own). At the points with fine
+multipliers the chords run to :data:`CHORD_REL_TOL` and their contraction
+rate is stored (``error_chord_rate``); in between, one chord correction (one
+fine residual) when that rate is below :data:`CHORD_SINGLE_RATE`: the
+estimate is then exact to that rate.
 
 For a discretisation of order ``q`` the coarse error is ``(fine - coarse)
 2^q / (2^q - 1)`` (Richardson), so the estimate is ``1 - 2^-q`` of it (0.75
@@ -89,9 +94,15 @@ CHORD_RATE_MAX = 0.3
 CHORD_MAX_ITER = 6
 #: ``"periods"`` mode: fine multipliers again after this many points ...
 MULTIPLIER_EVERY = 10
-#: ... or once a leading coarse multiplier moved by more than this from the
-#: point where they were last computed.
+#: ... or once a leading coarse multiplier moved from the point where they
+#: were last computed by more than this, or by this fraction of its modulus
+#: (whichever is smaller).
 MULTIPLIER_MOVE = 0.05
+MULTIPLIER_MOVE_REL = 0.25
+#: Between those points the fine solve is one chord correction when the last
+#: measured contraction rate is at most this (the estimate is then exact to
+#: this fraction), else chords to :data:`CHORD_REL_TOL`.
+CHORD_SINGLE_RATE = 1e-2
 
 
 def check_mode(mode: str) -> str:
@@ -126,42 +137,53 @@ def solve_fixed_p(fine: Problem, x0: Array, p: float, s: ContinuationSettings
                          max(s.newton_max_iter, 15), **kw)
 
 
-def solve_chord(fine: Problem, x0: Array, p: float, J: Array, s: ContinuationSettings
-                ) -> tuple[Array, NewtonInfo]:
+def solve_chord(fine: Problem, x0: Array, p: float, J: Array, s: ContinuationSettings,
+                single: bool = False) -> tuple[Array, NewtonInfo, float]:
     """The fine problem's solution at the fixed parameter ``p`` from ``x0``
     by chord iterations on ``J`` (the coarse point's ``G_x``: it differs from
     the fine one by the discretisation error, so the iterations contract at
     about that rate). Stops when a correction is :data:`CHORD_REL_TOL` of
     the first one or the residual is below ``s.newton_tol``; a correction
     that does not shrink by :data:`CHORD_RATE_MAX` (e.g. near a fold, where
-    ``J`` is nearly singular) hands over to :func:`solve_fixed_p` from there."""
+    ``J`` is nearly singular) hands over to :func:`solve_fixed_p` from there.
+    ``single``: one correction only (one fine residual; the result is then
+    exact to the contraction rate, which the caller knows from a nearby
+    point). Returns the solution, the solve's info and the contraction rate
+    (second correction over the first; NaN when unknown)."""
     lu = sla.lu_factor(J, check_finite=False)
     x = np.array(x0, dtype=float)
     r = fine.residual(x, p)
     history = [float(np.max(np.abs(r)))]
     first = prev = None
+    rate = float("nan")
     for k in range(CHORD_MAX_ITER):
         if not np.all(np.isfinite(r)):
             break
         # at least one correction: the estimate is the correction, even
         # when the first residual is already below the tolerance
         if k > 0 and history[-1] <= s.newton_tol:
-            return x, NewtonInfo(True, k, history[-1], history)
+            return x, NewtonInfo(True, k, history[-1], history), rate
         dx = sla.lu_solve(lu, r, check_finite=False)
         step = float(np.max(np.abs(dx)))
         if not np.isfinite(step):
             break
         if first is None:
             first = step
-        elif prev is not None and step > CHORD_RATE_MAX * prev:
-            break  # not contracting: Newton from the last good iterate
+            if single:
+                return x - dx, NewtonInfo(True, 1, history[-1], history), rate
+        else:
+            if k == 1:
+                rate = step / first if first > 0.0 else 0.0
+            if prev is not None and step > CHORD_RATE_MAX * prev:
+                break  # not contracting: Newton from the last good iterate
         x = x - dx
         if k > 0 and step <= CHORD_REL_TOL * first:
-            return x, NewtonInfo(True, k + 1, history[-1] * step / first, history)
+            return x, NewtonInfo(True, k + 1, history[-1] * step / first, history), rate
         prev = step
         r = fine.residual(x, p)
         history.append(float(np.max(np.abs(r))))
-    return solve_fixed_p(fine, x, p, s)
+    xs, info = solve_fixed_p(fine, x, p, s)
+    return xs, info, rate
 
 
 def _leading(st: Stability, k: int) -> NDArray[np.complex128]:
@@ -187,7 +209,7 @@ def point_errors(pb: Problem, x: Array, p: float, s: ContinuationSettings,
                  stability: Stability | None = None,
                  observables: dict[str, Any] | None = None,
                  full: bool = False, jacobian: Array | None = None,
-                 multipliers: bool = True) -> dict[str, float]:
+                 multipliers: bool = True, single: bool = False) -> dict[str, float]:
     """Estimates at the solution ``(x, p)`` of ``pb`` (``{}`` when ``pb``
     cannot refine). ``stability`` / ``observables``: the coarse ones, to be
     compared (skipped when None); ``full`` compares the observables too.
@@ -195,8 +217,10 @@ def point_errors(pb: Problem, x: Array, p: float, s: ContinuationSettings,
     ``error_<observable>``, ``error_order``, ``error_time`` (s); a failed
     fine solve gives ``error_estimate_failed = 1`` and nothing else.
     ``jacobian``: the coarse ``G_x`` at ``x`` (fine solve by
-    :func:`solve_chord`; else Newton, :func:`solve_fixed_p`);
-    ``multipliers=False`` skips the fine multipliers."""
+    :func:`solve_chord`, one correction only with ``single``, and the
+    measured contraction rate stored as ``error_chord_rate``; else Newton,
+    :func:`solve_fixed_p`); ``multipliers=False`` skips the fine
+    multipliers."""
     t0 = time.perf_counter()
     fine = refined(pb)
     if fine is None:
@@ -205,7 +229,10 @@ def point_errors(pb: Problem, x: Array, p: float, s: ContinuationSettings,
     try:
         x0 = pb.onto_refined(np.asarray(x, dtype=float), fine)
         if jacobian is not None and np.shape(jacobian) == (x0.size, x0.size):
-            xf, info = solve_chord(fine, x0, p, np.asarray(jacobian, dtype=float), s)
+            xf, info, rate = solve_chord(fine, x0, p, np.asarray(jacobian, dtype=float), s,
+                                         single=single)
+            if np.isfinite(rate):
+                out["error_chord_rate"] = rate
         else:
             xf, info = solve_fixed_p(fine, x0, p, s)
         if not info.converged:
@@ -237,23 +264,32 @@ def _scalar(v: Any) -> bool:
 
 
 class _MultiplierSource:
-    """Where a ``"periods"`` run last computed fine multipliers."""
+    """Where a ``"periods"`` run last computed fine multipliers (its
+    parameter, leading coarse multipliers, multiplier error and chord
+    contraction rate; ``age``: points since)."""
 
-    def __init__(self, p: float, values: NDArray[np.complex128], error: float) -> None:
-        self.p, self.values, self.error, self.age = p, values, error, 0
+    def __init__(self, p: float, values: NDArray[np.complex128], error: float,
+                 rate: float) -> None:
+        self.p, self.values, self.error, self.rate, self.age = p, values, error, rate, 0
 
 
 #: per problem (one continuation run): the last fine-multiplier point
 _SOURCES: weakref.WeakKeyDictionary[Any, _MultiplierSource] = weakref.WeakKeyDictionary()
 
 
-def _moved(src: _MultiplierSource, st: Stability) -> float:
-    """Largest distance of the leading non-trivial multipliers of ``st`` to
-    the nearest of ``src``'s."""
+def _moved(src: _MultiplierSource, st: Stability) -> bool:
+    """Whether a leading non-trivial multiplier of ``st`` is farther from
+    the nearest of ``src``'s than ``min(MULTIPLIER_MOVE, MULTIPLIER_MOVE_REL
+    |λ|)``."""
     now = _leading(st, N_LEADING)
     if now.size == 0 or src.values.size == 0:
-        return float("inf")
-    return float(max(np.min(np.abs(src.values - z)) for z in now))
+        return True
+    for z in now:
+        d = np.abs(src.values - z)
+        i = int(np.argmin(d))
+        if d[i] > min(MULTIPLIER_MOVE, MULTIPLIER_MOVE_REL * abs(src.values[i])):
+            return True
+    return False
 
 
 def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
@@ -263,12 +299,13 @@ def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
     in ``"periods"`` mode the fine solve by chords on ``ctx.jacobian`` and
     the fine multipliers only where due (module docstring)."""
     st = ctx.stability if s.compute_stability else None
+    jac = getattr(ctx, "jacobian", None)
     if special or s.error_estimates != "periods":
         # Newton on the fine problem at a special point (a fold's G_x is
         # singular: no chords there)
         out = point_errors(pb, ctx.x, ctx.p, s, st, pt.observables or None,
                            full=s.error_estimates == "full",
-                           jacobian=None if special else getattr(ctx, "jacobian", None))
+                           jacobian=None if special else jac)
         for k in ("multiplier_error_p", "multiplier_error_age"):
             pt.accuracy.pop(k, None)  # a "periods" estimate made before: now its own
         if s.error_estimates == "periods" and "multiplier_error" in out:
@@ -280,17 +317,22 @@ def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
     except TypeError:  # an unhashable problem: no memory, multipliers every point
         src = None
     due = st is not None and (src is None or src.age + 1 >= MULTIPLIER_EVERY
-                              or _moved(src, st) > MULTIPLIER_MOVE)
-    out = point_errors(pb, ctx.x, ctx.p, s, st, None, jacobian=getattr(ctx, "jacobian", None),
-                       multipliers=due)
-    if st is None or "error_estimate_failed" in out \
-            or not any(f"{k}_error" in out for k in EXTRA_UNKNOWNS):
+                              or _moved(src, st))
+    # one chord step where the last measured contraction rate says it is
+    # enough (the estimate is then exact to that rate)
+    single = (not due and src is not None and np.isfinite(src.rate)
+              and src.rate <= CHORD_SINGLE_RATE)
+    out = point_errors(pb, ctx.x, ctx.p, s, st, None, jacobian=jac, multipliers=due,
+                       single=single)
+    if "error_estimate_failed" in out or not any(f"{k}_error" in out for k in EXTRA_UNKNOWNS):
         pt.accuracy.update(out)  # nothing refined (or a failed fine solve)
         return
+    rate = out.get("error_chord_rate", np.nan)
     if due:
         me = out.get("multiplier_error")
         if me is not None and np.isfinite(me):
-            src = _MultiplierSource(float(ctx.p), _leading(st, N_LEADING), float(me))
+            src = _MultiplierSource(float(ctx.p), _leading(st, N_LEADING), float(me),
+                                    float(rate))
             out.update(multiplier_error_p=src.p, multiplier_error_age=0.0)
             try:
                 _SOURCES[pb] = src
@@ -298,6 +340,8 @@ def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
                 pass
     elif src is not None:
         src.age += 1
+        if np.isfinite(rate):
+            src.rate = float(rate)
         out.update(multiplier_error=src.error, multiplier_error_p=src.p,
                    multiplier_error_age=float(src.age))
     pt.accuracy.update(out)
