@@ -26,12 +26,11 @@ discretisation error is small), so ``period_error`` / ``drift_error`` are the
 same fine - coarse as above. The fine multipliers (the expensive part: a fine
 tangent sweep, and for a subspace solve the full model's out-of-subspace
 block) are computed at special points, at the first point of a run and
-again after :data:`MULTIPLIER_EVERY` points or once the leading coarse
-multipliers moved by more than :data:`MULTIPLIER_MOVE` (or
-:data:`MULTIPLIER_MOVE_REL` of their modulus) from where they were last
-computed; the points in between carry that ``multiplier_error`` with
-``multiplier_error_p`` (the parameter of the point it was computed at) and
-``multiplier_error_age`` (points back; 0: its own). At the points with fine
+again every :data:`MULTIPLIER_EVERY` points; the points in between carry
+that ``multiplier_error`` with ``multiplier_error_p`` (the parameter of the
+point it was computed at) and ``multiplier_error_age`` (points back; 0: its
+own): the error there, not here (on the textbook cycle it is within a factor
+~5 of this point's true error after 9 points; docs/accuracy.md). At the points with fine
 multipliers the chords run to :data:`CHORD_REL_TOL` and their contraction
 rate is stored (``error_chord_rate``); in between, one chord correction (one
 fine residual) when that rate is below :data:`CHORD_SINGLE_RATE`: the
@@ -94,11 +93,9 @@ CHORD_RATE_MAX = 0.3
 CHORD_MAX_ITER = 6
 #: ``"periods"`` mode: fine multipliers again after this many points ...
 MULTIPLIER_EVERY = 10
-#: ... or once a leading coarse multiplier moved from the point where they
-#: were last computed by more than this, or by this fraction of its modulus
-#: (whichever is smaller).
-MULTIPLIER_MOVE = 0.05
-MULTIPLIER_MOVE_REL = 0.25
+#: (No trigger on the multipliers' motion: along the paper studies' branches
+#: of cycles the leading multipliers move by 0.2-1 per step, so any such
+#: trigger fires at nearly every point; docs/decisions.md 30.)
 #: Between those points the fine solve is one chord correction when the last
 #: measured contraction rate is at most this (the estimate is then exact to
 #: this fraction), else chords to :data:`CHORD_REL_TOL`.
@@ -162,6 +159,10 @@ def solve_chord(fine: Problem, x0: Array, p: float, J: Array, s: ContinuationSet
         # at least one correction: the estimate is the correction, even
         # when the first residual is already below the tolerance
         if k > 0 and history[-1] <= s.newton_tol:
+            if k == 1 and history[0] > 0.0:
+                # at the tolerance after one correction: the residuals'
+                # ratio stands for the contraction rate
+                rate = history[1] / history[0]
             return x, NewtonInfo(True, k, history[-1], history), rate
         dx = sla.lu_solve(lu, r, check_finite=False)
         step = float(np.max(np.abs(dx)))
@@ -265,31 +266,15 @@ def _scalar(v: Any) -> bool:
 
 class _MultiplierSource:
     """Where a ``"periods"`` run last computed fine multipliers (its
-    parameter, leading coarse multipliers, multiplier error and chord
-    contraction rate; ``age``: points since)."""
+    parameter, multiplier error and chord contraction rate; ``age``: points
+    since)."""
 
-    def __init__(self, p: float, values: NDArray[np.complex128], error: float,
-                 rate: float) -> None:
-        self.p, self.values, self.error, self.rate, self.age = p, values, error, rate, 0
+    def __init__(self, p: float, error: float, rate: float) -> None:
+        self.p, self.error, self.rate, self.age = p, error, rate, 0
 
 
 #: per problem (one continuation run): the last fine-multiplier point
 _SOURCES: weakref.WeakKeyDictionary[Any, _MultiplierSource] = weakref.WeakKeyDictionary()
-
-
-def _moved(src: _MultiplierSource, st: Stability) -> bool:
-    """Whether a leading non-trivial multiplier of ``st`` is farther from
-    the nearest of ``src``'s than ``min(MULTIPLIER_MOVE, MULTIPLIER_MOVE_REL
-    |λ|)``."""
-    now = _leading(st, N_LEADING)
-    if now.size == 0 or src.values.size == 0:
-        return True
-    for z in now:
-        d = np.abs(src.values - z)
-        i = int(np.argmin(d))
-        if d[i] > min(MULTIPLIER_MOVE, MULTIPLIER_MOVE_REL * abs(src.values[i])):
-            return True
-    return False
 
 
 def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
@@ -316,8 +301,7 @@ def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
         src = _SOURCES.get(pb)
     except TypeError:  # an unhashable problem: no memory, multipliers every point
         src = None
-    due = st is not None and (src is None or src.age + 1 >= MULTIPLIER_EVERY
-                              or _moved(src, st))
+    due = st is not None and (src is None or src.age + 1 >= MULTIPLIER_EVERY)
     # one chord step where the last measured contraction rate says it is
     # enough (the estimate is then exact to that rate)
     single = (not due and src is not None and np.isfinite(src.rate)
@@ -331,8 +315,7 @@ def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
     if due:
         me = out.get("multiplier_error")
         if me is not None and np.isfinite(me):
-            src = _MultiplierSource(float(ctx.p), _leading(st, N_LEADING), float(me),
-                                    float(rate))
+            src = _MultiplierSource(float(ctx.p), float(me), float(rate))
             out.update(multiplier_error_p=src.p, multiplier_error_age=0.0)
             try:
                 _SOURCES[pb] = src
