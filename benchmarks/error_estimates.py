@@ -261,6 +261,10 @@ def _mode_times(run: Any) -> dict[str, Any]:
     out: dict[str, Any] = {f"time_{m}": best[m] for m in COST_MODES}
     out.update({f"overhead_{m}": best[m] / best["off"] - 1.0 for m in COST_MODES[1:]})
     pts = kept["periods"].points
+    off = kept["off"].points
+    # the estimates work on a refined copy: the run's own path is untouched
+    out["path_diff_periods_vs_off"] = float(max(abs(a.p - b.p) for a, b in zip(
+        pts, off, strict=False))) if len(pts) == len(off) else float("inf")
     out["points"] = len(pts)
     out["own_multiplier_points"] = sum(
         1 for q in pts if q.accuracy.get("multiplier_error_age") == 0.0)
@@ -325,8 +329,8 @@ def cost_main() -> None:
             rows[f"filament_{integ}"] = cost_filament(integ, n)
             print(f"filament {integ}: {rows[f'filament_{integ}']}", flush=True)
     print(json.dumps({k: {q: v[q] for q in v if q.startswith("overhead") or q in (
-        "points", "own_multiplier_points", "single_chord_points")} for k, v in rows.items()},
-        default=float))
+        "points", "own_multiplier_points", "single_chord_points", "path_diff_periods_vs_off")}
+        for k, v in rows.items()}, default=float))
 
 
 def main() -> None:
