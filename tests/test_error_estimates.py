@@ -283,3 +283,31 @@ def test_periods_mode_every_point_its_period_error_multipliers_from_a_recent_poi
 def pb_x(pb, pt):
     """The unknowns of point ``pt`` of single shooting (state, period)."""
     return np.append(pt.u, pt.extra["period"])
+
+
+def test_periods_mode_through_a_fold_of_cycles():
+    """Towards the fold of cycles (μ = -1/4) a multiplier closes on 1 and the
+    coarse ``G_x`` of the chords grows singular: the single chord correction
+    gives way to chords run to convergence there, and every point's period
+    error is still 31/32 of the true one (exact period 2π / (1 + b r²))."""
+    from contfil.models.catalog.cycles_hopf import cycle_radius2
+
+    b = 0.3
+    m = subcritical_stuart_landau(mu=-0.2, b=b)
+    eq = Continuation(EquilibriumProblem(m, "mu"), np.zeros(2), -0.2,
+                      ContinuationSettings(ds=0.05, max_points=8, p_max=0.2)).run()
+    hopf = next(sp for sp in eq.special_points if sp.kind == HOPF)
+    br = cycles_from_hopf(m, "mu", hopf, eps=0.1, steps=6).run(ContinuationSettings(
+        ds=0.02, ds_max=0.03, max_points=40, p_min=-0.5, p_max=0.5))
+    assert any(sp.kind == CYCLE_FOLD for sp in br.special_points)
+    full_near_fold = 0
+    for pt in br.points:
+        r2 = float(pt.u @ pt.u)
+        exact_r2 = min((cycle_radius2(pt.p, 1.0, -1.0, s) for s in (1, -1)),
+                       key=lambda q: abs(q - r2))
+        true = 2 * np.pi / (1 + b * exact_r2) - pt.extra["period"]
+        assert abs(true) > 1e-7
+        assert pt.accuracy["period_error"] / true == pytest.approx(31 / 32, rel=0.1)
+        if abs(pt.p + 0.25) < 0.01 and "error_chord_rate" in pt.accuracy:
+            full_near_fold += 1
+    assert full_near_fold >= 1

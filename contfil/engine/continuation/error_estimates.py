@@ -19,22 +19,23 @@ accepted point carried over by :meth:`Problem.onto_refined`:
   ``p_fine - p_coarse``.
 
 In ``"periods"`` mode (the default, docs/decisions.md 30) every point gets
-the cheap part only: the fine solve by chord iterations on the coarse
-point's own Jacobian (``ctx.jacobian``, already formed by the corrector:
-each iteration is one fine residual, no fine Jacobian; two suffice where the
-discretisation error is small), so ``period_error`` / ``drift_error`` are the
-same fine - coarse as above. The fine multipliers (the expensive part: a fine
-tangent sweep, and for a subspace solve the full model's out-of-subspace
-block) are computed at special points, at the first point of a run and
-again every :data:`MULTIPLIER_EVERY` points; the points in between carry
-that ``multiplier_error`` with ``multiplier_error_p`` (the parameter of the
-point it was computed at) and ``multiplier_error_age`` (points back; 0: its
-own): the error there, not here (on the textbook cycle it is within a factor
-~5 of this point's true error after 9 points; docs/accuracy.md). At the points with fine
-multipliers the chords run to :data:`CHORD_REL_TOL` and their contraction
-rate is stored (``error_chord_rate``); in between, one chord correction (one
-fine residual) when that rate is below :data:`CHORD_SINGLE_RATE`: the
-estimate is then exact to that rate.
+the cheap part: the fine solve by chord iterations on the coarse point's own
+Jacobian (``ctx.jacobian``, formed by the corrector anyway: each iteration
+is one fine residual, no fine Jacobian), so ``period_error`` /
+``drift_error`` are the same fine - coarse as above. The fine multipliers
+(the expensive part: a fine tangent sweep, and for a subspace solve the full
+model's out-of-subspace block) are computed at special points, at the first
+point of a run and again every :data:`MULTIPLIER_EVERY` points; the points
+in between carry that ``multiplier_error`` with ``multiplier_error_p`` (the
+parameter of the point it was computed at) and ``multiplier_error_age``
+(points back; 0: its own): the error there, not here (on the textbook cycle
+it fell to 0.2 of this point's true error after 9 points;
+docs/accuracy.md). At the points with fine multipliers the chords run to
+:data:`CHORD_REL_TOL` and their contraction rate is stored
+(``error_chord_rate``); in between, one chord correction (one fine residual)
+while that rate is at most :data:`CHORD_SINGLE_RATE` and no non-trivial
+multiplier came twice as close to 1 (the rate grows like ``1 / |1 - μ|``):
+the estimate is then exact to that rate.
 
 For a discretisation of order ``q`` the coarse error is ``(fine - coarse)
 2^q / (2^q - 1)`` (Richardson), so the estimate is ``1 - 2^-q`` of it (0.75
@@ -65,8 +66,8 @@ Array = NDArray[np.float64]
 
 #: The values of ``ContinuationSettings.error_estimates``: nothing; special
 #: points only (location and their point estimates); ``"periods"`` (the
-#: default): special points, every point's period / extra unknowns and a
-#: multiplier error from the nearest recent point with fine multipliers;
+#: default): special points, every point's period / extra unknowns and the
+#: multiplier error of the last point with fine multipliers;
 #: every point (period / extra unknowns and its own leading multipliers) and
 #: special points; everything of ``"points"`` plus the observables.
 MODES = ERROR_ESTIMATE_MODES
@@ -269,8 +270,17 @@ class _MultiplierSource:
     parameter, multiplier error and chord contraction rate; ``age``: points
     since)."""
 
-    def __init__(self, p: float, error: float, rate: float) -> None:
-        self.p, self.error, self.rate, self.age = p, error, rate, 0
+    def __init__(self, p: float, error: float, rate: float, gap: float) -> None:
+        self.p, self.error, self.rate, self.gap, self.age = p, error, rate, gap, 0
+
+
+def _gap(st: Stability) -> float:
+    """Distance to 1 of the non-trivial multiplier nearest to it (the chords'
+    matrix ``G_x`` grows singular as it closes)."""
+    vals = np.asarray(st.values, dtype=complex)
+    if st.trivial is not None:
+        vals = vals[~np.asarray(st.trivial, dtype=bool)]
+    return float(np.min(np.abs(vals - 1.0))) if vals.size else float("inf")
 
 
 #: per problem (one continuation run): the last fine-multiplier point
@@ -303,9 +313,12 @@ def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
         src = None
     due = st is not None and (src is None or src.age + 1 >= MULTIPLIER_EVERY)
     # one chord step where the last measured contraction rate says it is
-    # enough (the estimate is then exact to that rate)
+    # enough (the estimate is then exact to that rate), unless a multiplier
+    # came closer to 1 since (the rate grows like 1 / |1 - μ|: near a fold
+    # or a branch point the chords run to convergence again)
     single = (not due and src is not None and np.isfinite(src.rate)
-              and src.rate <= CHORD_SINGLE_RATE)
+              and src.rate <= CHORD_SINGLE_RATE and st is not None
+              and _gap(st) >= 0.5 * src.gap)
     out = point_errors(pb, ctx.x, ctx.p, s, st, None, jacobian=jac, multipliers=due,
                        single=single)
     if "error_estimate_failed" in out or not any(f"{k}_error" in out for k in EXTRA_UNKNOWNS):
@@ -315,7 +328,7 @@ def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
     if due:
         me = out.get("multiplier_error")
         if me is not None and np.isfinite(me):
-            src = _MultiplierSource(float(ctx.p), float(me), float(rate))
+            src = _MultiplierSource(float(ctx.p), float(me), float(rate), _gap(st))
             out.update(multiplier_error_p=src.p, multiplier_error_age=0.0)
             try:
                 _SOURCES[pb] = src
@@ -323,8 +336,8 @@ def add_point_errors(pt: Point, pb: Problem, ctx: Any, s: ContinuationSettings,
                 pass
     elif src is not None:
         src.age += 1
-        if np.isfinite(rate):
-            src.rate = float(rate)
+        if np.isfinite(rate):  # chords ran to convergence: their rate, here
+            src.rate, src.gap = float(rate), _gap(st)
         out.update(multiplier_error=src.error, multiplier_error_p=src.p,
                    multiplier_error_age=float(src.age))
     pt.accuracy.update(out)
