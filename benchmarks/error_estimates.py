@@ -26,7 +26,13 @@ same continuation run with ``off`` / ``special`` / ``periods`` (the default)
 textbook shooting cases and the filament's planar beating (tip SF from
 b1 = 742.5, Radau IIA 80 steps and BDF2 ``T/400``, ``--points N`` points).
 
-Run: ``python benchmarks/error_estimates.py [--cost]`` (ends with one JSON line).
+``--cycle-tests``: the engine's cycle tests (:data:`CYCLE_TESTS`) once per
+mode ``off`` / ``special`` / ``periods``, one after the other, with the
+default of ``ContinuationSettings.error_estimates`` switched in the test
+process (tests that set a mode keep it); wall time of each.
+
+Run: ``python benchmarks/error_estimates.py [--cost | --cycle-tests]`` (ends
+with one JSON line).
 """
 
 from __future__ import annotations
@@ -333,7 +339,42 @@ def cost_main() -> None:
         for k, v in rows.items()}, default=float))
 
 
+CYCLE_TESTS = ("tests/test_cycles_hopf.py", "tests/test_cycles_published.py",
+               "tests/test_cycles_designed.py", "tests/test_cycle_events_generic.py",
+               "tests/test_branch_ends.py")
+_SWITCHED_DEFAULT = """
+import dataclasses, sys
+import pytest
+from contfil.engine.continuation.settings import ContinuationSettings
+names = [f.name for f in dataclasses.fields(ContinuationSettings)]
+d = list(ContinuationSettings.__init__.__defaults__)
+d[names.index("error_estimates")] = sys.argv[1]
+ContinuationSettings.__init__.__defaults__ = tuple(d)
+sys.exit(pytest.main(["-q", "-p", "no:cacheprovider", *sys.argv[2:]]))
+"""
+
+
+def cycle_tests_main() -> None:
+    import subprocess
+
+    out: dict[str, Any] = {}
+    for mode in ("off", "special", "periods"):
+        t0 = time.perf_counter()
+        rc = subprocess.run([sys.executable, "-c", _SWITCHED_DEFAULT, mode, *CYCLE_TESTS],
+                            cwd=ROOT, capture_output=True, text=True)
+        out[f"wall_{mode}"] = time.perf_counter() - t0
+        out[f"result_{mode}"] = (rc.stdout.strip().splitlines() or ["?"])[-1]
+        print(f"cycle tests, {mode}: {out[f'wall_{mode}']:.1f} s ({out[f'result_{mode}']})",
+              flush=True)
+    out["periods_vs_special"] = out["wall_periods"] / out["wall_special"]
+    out["periods_vs_off"] = out["wall_periods"] / out["wall_off"]
+    print(json.dumps(out, default=float))
+
+
 def main() -> None:
+    if "--cycle-tests" in sys.argv:
+        cycle_tests_main()
+        return
     if "--cost" in sys.argv:
         cost_main()
         return
