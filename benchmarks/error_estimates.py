@@ -20,7 +20,19 @@ Cost: wall time of a continuation run with ``error_estimates = "points"``
 against ``"off"`` (per point), and for the filament the estimate's time
 against one solve with stability at the coarse resolution.
 
-Run: ``python benchmarks/error_estimates.py`` (ends with one JSON line).
+``--cost``: only the side-by-side cost of the modes (decisions 30): the
+same continuation run with ``off`` / ``special`` / ``periods`` (the default)
+/ ``points``, wall time per point and the overhead against ``off``, for the
+textbook shooting cases and the filament's planar beating (tip SF from
+b1 = 742.5, Radau IIA 80 steps and BDF2 ``T/400``, ``--points N`` points).
+
+``--cycle-tests``: the engine's cycle tests (:data:`CYCLE_TESTS`) once per
+mode ``off`` / ``special`` / ``periods``, one after the other, with the
+default of ``ContinuationSettings.error_estimates`` switched in the test
+process (tests that set a mode keep it); wall time of each.
+
+Run: ``python benchmarks/error_estimates.py [--cost | --cycle-tests]`` (ends
+with one JSON line).
 """
 
 from __future__ import annotations
@@ -236,7 +248,136 @@ def pitchfork_case() -> dict[str, Any]:
             "failed": sp.data.get("p_error_failed")}
 
 
+COST_MODES = ("off", "special", "periods", "points")
+
+
+def _mode_times(run: Any) -> dict[str, Any]:
+    """``run(mode) -> branch`` for each mode, interleaved over two rounds
+    (load drifts alike on all modes); per-point wall time (the faster round)
+    and the overhead against ``off``."""
+    best: dict[str, float] = {}
+    kept: dict[str, Any] = {}
+    for _ in range(2):
+        for mode in COST_MODES:
+            t0 = time.perf_counter()
+            br = run(mode)
+            t = (time.perf_counter() - t0) / len(br.points)
+            best[mode] = min(best.get(mode, np.inf), t)
+            kept[mode] = br
+    out: dict[str, Any] = {f"time_{m}": best[m] for m in COST_MODES}
+    out.update({f"overhead_{m}": best[m] / best["off"] - 1.0 for m in COST_MODES[1:]})
+    pts = kept["periods"].points
+    off = kept["off"].points
+    # the estimates work on a refined copy: the run's own path is untouched
+    out["path_diff_periods_vs_off"] = float(max(abs(a.p - b.p) for a, b in zip(
+        pts, off, strict=False))) if len(pts) == len(off) else float("inf")
+    out["points"] = len(pts)
+    out["own_multiplier_points"] = sum(
+        1 for q in pts if q.accuracy.get("multiplier_error_age") == 0.0)
+    out["single_chord_points"] = sum(1 for q in pts if "error_chord_rate" not in q.accuracy
+                                     and "period_error" in q.accuracy)
+    out["period_error_periods_vs_points"] = float(np.max([
+        abs(a.accuracy["period_error"] / b.accuracy["period_error"] - 1.0)
+        for a, b in zip(pts, kept["points"].points, strict=False)
+        if "period_error" in a.accuracy and "period_error" in b.accuracy
+        and abs(a.p - b.p) < 1e-9] or [np.nan]))
+    return out
+
+
+def cost_textbook(method: str, steps: int) -> dict[str, Any]:
+    sl = stuart_landau(mu=0.5, b=0.3)
+    ex = exact_cycle(0.5, b=0.3)
+    x0 = np.array([ex["r"], 0.0, ex["period"]])
+
+    def run(mode: str) -> Any:
+        m = sl if method == "radau" else FixedStep(sl, method, steps)
+        return Continuation(PeriodicOrbitProblem(m, "mu", steps=steps), x0, 0.5,
+                            ContinuationSettings(ds=0.05, max_points=20, p_max=3.0,
+                                                 error_estimates=mode)).run()
+    return _mode_times(run)
+
+
+def cost_filament(integrator: str, n_points: int) -> dict[str, Any]:
+    """The planar beating branch of tip SF from b1 = 742.5 downwards (the
+    study's problem: subspace solve, Broyden corrector, 3-D multipliers)."""
+    from work_precision import stored_beating_guess
+
+    from contfil.models.filament import FilamentModel
+    from contfil.models.filament.cycles import FixedStepFlow
+
+    scene = ROOT / "branches" / "tip_sf.toml"
+    model: Any = FilamentModel(scene, integrator="radau") if integrator == "radau" \
+        else FixedStepFlow(FilamentModel(scene), 400)
+    x0 = stored_beating_guess(B1)
+    pb0 = PeriodicOrbitProblem(model, "b1", np.array([B1]), subspace="planar_xz")
+    pb0.set_reference(x0[:-1], B1)
+    x, info = newton_dense(lambda z: pb0.residual(z, B1), lambda z: pb0.jacobian(z, B1), x0,
+                           tol=1e-10, max_iter=15)
+
+    def run(mode: str) -> Any:
+        pb = PeriodicOrbitProblem(model, "b1", np.array([B1]), subspace="planar_xz")
+        pb.set_reference(x[:-1], B1)
+        return Continuation(pb, x, B1, ContinuationSettings(
+            ds=2.0, ds_max=20.0, max_points=n_points, p_min=600.0, p_max=B1 + 1.0,
+            error_estimates=mode), direction=-1).run()
+    run("off")  # compiled kernels, not measured
+    return _mode_times(run)
+
+
+def cost_main() -> None:
+    n = int(sys.argv[sys.argv.index("--points") + 1]) if "--points" in sys.argv else 12
+    rows: dict[str, Any] = {}
+    for method, steps in (("heun", 40), ("rk4", 12), ("radau", 6)):
+        rows[f"textbook_{method}"] = cost_textbook(method, steps)
+        print(f"textbook {method}: {rows[f'textbook_{method}']}", flush=True)
+    if "--no-filament" not in sys.argv:
+        for integ in ("radau", "bdf2"):
+            rows[f"filament_{integ}"] = cost_filament(integ, n)
+            print(f"filament {integ}: {rows[f'filament_{integ}']}", flush=True)
+    print(json.dumps({k: {q: v[q] for q in v if q.startswith("overhead") or q in (
+        "points", "own_multiplier_points", "single_chord_points", "path_diff_periods_vs_off")}
+        for k, v in rows.items()}, default=float))
+
+
+CYCLE_TESTS = ("tests/test_cycles_hopf.py", "tests/test_cycles_published.py",
+               "tests/test_cycles_designed.py", "tests/test_cycle_events_generic.py",
+               "tests/test_branch_ends.py")
+_SWITCHED_DEFAULT = """
+import dataclasses, sys
+import pytest
+from contfil.engine.continuation.settings import ContinuationSettings
+names = [f.name for f in dataclasses.fields(ContinuationSettings)]
+d = list(ContinuationSettings.__init__.__defaults__)
+d[names.index("error_estimates")] = sys.argv[1]
+ContinuationSettings.__init__.__defaults__ = tuple(d)
+sys.exit(pytest.main(["-q", "-p", "no:cacheprovider", *sys.argv[2:]]))
+"""
+
+
+def cycle_tests_main() -> None:
+    import subprocess
+
+    out: dict[str, Any] = {}
+    for mode in ("off", "special", "periods"):
+        t0 = time.perf_counter()
+        rc = subprocess.run([sys.executable, "-c", _SWITCHED_DEFAULT, mode, *CYCLE_TESTS],
+                            cwd=ROOT, capture_output=True, text=True)
+        out[f"wall_{mode}"] = time.perf_counter() - t0
+        out[f"result_{mode}"] = (rc.stdout.strip().splitlines() or ["?"])[-1]
+        print(f"cycle tests, {mode}: {out[f'wall_{mode}']:.1f} s ({out[f'result_{mode}']})",
+              flush=True)
+    out["periods_vs_special"] = out["wall_periods"] / out["wall_special"]
+    out["periods_vs_off"] = out["wall_periods"] / out["wall_off"]
+    print(json.dumps(out, default=float))
+
+
 def main() -> None:
+    if "--cycle-tests" in sys.argv:
+        cycle_tests_main()
+        return
+    if "--cost" in sys.argv:
+        cost_main()
+        return
     rows: dict[str, Any] = {}
     for method, steps in (("heun", 40), ("rk4", 12), ("radau", 6)):
         rows[method] = shooting_case(method, steps)

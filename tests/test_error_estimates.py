@@ -184,8 +184,8 @@ def test_spec_key_reaches_the_engine_settings():
 
     base = '[model]\nname = "z2_pitchfork"\n[continuation]\nparameter = "mu"\n' \
            'range = [-1.0, 1.0]\n'
-    assert engine_settings(loads_spec(base)).error_estimates == "special"
-    for mode in ("off", "special", "points", "full"):
+    assert engine_settings(loads_spec(base)).error_estimates == "periods"
+    for mode in ("off", "special", "periods", "points", "full"):
         spec = loads_spec(base + f'error_estimates = "{mode}"\n')
         assert spec.continuation["error_estimates"] == mode
         assert engine_settings(spec).error_estimates == mode
@@ -241,3 +241,73 @@ def test_multiple_shooting_points_carry_the_period_error_of_the_refined_segments
     assert abs(true) > 1e-12  # resolved above round-off
     assert -pt.accuracy["period_error"] / true == pytest.approx(1 - 2.0 ** -5, rel=0.05)
     assert pt.accuracy["error_order"] == 5.0
+
+
+@pytest.mark.parametrize("method,steps,ratio", [("heun", 40, 0.75), ("radau", 6, 31 / 32)])
+def test_periods_mode_every_point_its_period_error_multipliers_from_a_recent_point(
+        method, steps, ratio):
+    """The default ``"periods"``: every point's period error (chords on the
+    coarse Jacobian) is the same fine - coarse as Newton's; the multiplier
+    error is a point's own (age 0) where the fine multipliers were computed
+    and is carried, with its source, to the points in between."""
+    sl = stuart_landau(mu=0.5, b=0.3)
+    m = sl if method == "radau" else FixedStep(sl, method, steps)
+    pb = PeriodicOrbitProblem(m, "mu", steps=steps)
+    ex = exact_cycle(0.5, b=0.3)
+    s = ContinuationSettings(ds=0.05, max_points=14, p_max=3.0)
+    assert s.error_estimates == "periods"  # the default
+    br = Continuation(pb, np.array([ex["r"], 0.0, ex["period"]]), 0.5, s).run()
+    ps = {pt.p: pt for pt in br.points}
+    ages = []
+    for pt in br.points:
+        e = exact_cycle(pt.p, b=0.3)
+        true_T = e["period"] - pt.extra["period"]
+        assert pt.accuracy["period_error"] / true_T == pytest.approx(ratio, rel=0.1)
+        # the same estimate as Newton's on the fine problem (to its 1e-4)
+        newton = point_errors(pb, pb_x(pb, pt), pt.p, s)["period_error"]
+        assert pt.accuracy["period_error"] == pytest.approx(newton, rel=1e-3)
+        age = int(pt.accuracy["multiplier_error_age"])
+        src = ps[pt.accuracy["multiplier_error_p"]]  # a point of the branch
+        assert src.accuracy["multiplier_error_age"] == 0.0
+        assert pt.accuracy["multiplier_error"] == src.accuracy["multiplier_error"]
+        # its own (age 0, as in "points") or carried: the true error at the
+        # point it came from, which it names
+        es = exact_cycle(src.p, b=0.3)
+        true_mu = abs(src.eigenvalues[~src.trivial][0] - es["multiplier"])
+        assert 0.5 < pt.accuracy["multiplier_error"] / true_mu < 2.0
+        assert age == 0 or src.p != pt.p
+        ages.append(age)
+    assert max(ages) >= 2 and ages.count(0) < len(ages)  # some carried, some own
+
+
+def pb_x(pb, pt):
+    """The unknowns of point ``pt`` of single shooting (state, period)."""
+    return np.append(pt.u, pt.extra["period"])
+
+
+def test_periods_mode_through_a_fold_of_cycles():
+    """Towards the fold of cycles (μ = -1/4) a multiplier closes on 1 and the
+    coarse ``G_x`` of the chords grows singular: the single chord correction
+    gives way to chords run to convergence there, and every point's period
+    error is still 31/32 of the true one (exact period 2π / (1 + b r²))."""
+    from contfil.models.catalog.cycles_hopf import cycle_radius2
+
+    b = 0.3
+    m = subcritical_stuart_landau(mu=-0.2, b=b)
+    eq = Continuation(EquilibriumProblem(m, "mu"), np.zeros(2), -0.2,
+                      ContinuationSettings(ds=0.05, max_points=8, p_max=0.2)).run()
+    hopf = next(sp for sp in eq.special_points if sp.kind == HOPF)
+    br = cycles_from_hopf(m, "mu", hopf, eps=0.1, steps=6).run(ContinuationSettings(
+        ds=0.02, ds_max=0.03, max_points=40, p_min=-0.5, p_max=0.5))
+    assert any(sp.kind == CYCLE_FOLD for sp in br.special_points)
+    full_near_fold = 0
+    for pt in br.points:
+        r2 = float(pt.u @ pt.u)
+        exact_r2 = min((cycle_radius2(pt.p, 1.0, -1.0, s) for s in (1, -1)),
+                       key=lambda q: abs(q - r2))
+        true = 2 * np.pi / (1 + b * exact_r2) - pt.extra["period"]
+        assert abs(true) > 1e-7
+        assert pt.accuracy["period_error"] / true == pytest.approx(31 / 32, rel=0.1)
+        if abs(pt.p + 0.25) < 0.01 and "error_chord_rate" in pt.accuracy:
+            full_near_fold += 1
+    assert full_near_fold >= 1

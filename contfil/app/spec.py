@@ -204,10 +204,11 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "max_newton": (_integer(1), 10, False, "Newton iterations per step"),
         "stability": (_boolean, True, False, "compute eigenvalues/multipliers at points"),
         "both_directions": (_boolean, False, False, "continue the root branch both ways"),
-        "error_estimates": (_choice(*ERROR_ESTIMATE_MODES), "special", False,
+        "error_estimates": (_choice(*ERROR_ESTIMATE_MODES), "periods", False,
                             "error estimates from two resolutions (docs/accuracy.md): off, "
-                            "special (special points: p_error), points (also every point's "
-                            "period and multiplier errors), full (also the observables)"),
+                            "special (special points: p_error), periods (also every point's "
+                            "period error, multiplier errors every few points), points (every "
+                            "point's own multiplier errors), full (also the observables)"),
     },
     "explorer": {
         "depth": (_integer(0), 1, False, "switches away from the root branch (0: root only)"),

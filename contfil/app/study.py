@@ -180,7 +180,7 @@ def engine_settings(spec: Spec) -> ContinuationSettings:
         max_points=10**9, p_min=lo, p_max=hi,
         newton_tol=c["tol"], newton_max_iter=c["max_newton"], theta=c["theta"],
         compute_stability=c["stability"],
-        error_estimates=c.get("error_estimates", "points"),
+        error_estimates=c["error_estimates"],
     )
 
 

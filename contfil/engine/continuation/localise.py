@@ -220,8 +220,9 @@ class Localiser:
             pt.n_unstable = ctx.stability.n_unstable
         mode = getattr(self.settings, "error_estimates", "off")
         if mode != "off":
-            if mode == "special":
-                add_point_errors(pt, self.pa.problem, ctx, self.settings)
+            if mode in ("special", "periods"):
+                # the point's own estimates, fine multipliers included
+                add_point_errors(pt, self.pa.problem, ctx, self.settings, special=True)
             # the location again on the refined problem (p_error; nothing
             # for a problem that cannot refine)
             data.update(location_error(self.pa.problem, self.settings, ev, j, r0, r1, pt.p))

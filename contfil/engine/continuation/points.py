@@ -18,8 +18,9 @@ def make_point(pb: Problem, s: ContinuationSettings, ctx: EventContext,
                info: NewtonInfo | None, ds: float, t0: float, evals0: int) -> Point:
     """The point at ``ctx``: state, parameters, tangent, the step ``ds`` that
     follows it, stability (``s.compute_stability``), corrector accuracy
-    (``info``), observables, error estimates (``s.error_estimates`` "points"
-    or "full": :func:`.error_estimates.point_errors` in ``accuracy``) and
+    (``info``), observables, error estimates (``s.error_estimates``
+    "periods", "points" or "full": :func:`.error_estimates.add_point_errors`
+    in ``accuracy``) and
     cost since ``t0`` / ``evals0``."""
     x, p = ctx.x, ctx.p
     pt = Point(u=np.array(pb.state(x), dtype=float), p=p, params=pb.params_at(p),
@@ -39,7 +40,7 @@ def make_point(pb: Problem, s: ContinuationSettings, ctx: EventContext,
         obs = pb.observables(x, p)
         if obs is not None:
             pt.observables = dict(obs)
-    if s.error_estimates in ("points", "full"):
+    if s.error_estimates in ("periods", "points", "full"):
         add_point_errors(pt, pb, ctx, s)
     pt.cost["wall_time"] = time.perf_counter() - t0
     if pb.rhs_evals is not None:

@@ -34,7 +34,7 @@ FOLD_COND_MAX = 1e13
 #: this (then its sign is fixed by its largest state component).
 FOLD_TAU_P_ZERO = 1e-12
 #: The values of ``ContinuationSettings.error_estimates`` (see there).
-ERROR_ESTIMATE_MODES = ("off", "special", "points", "full")
+ERROR_ESTIMATE_MODES = ("off", "special", "periods", "points", "full")
 
 
 def arclength_weights(n: int, theta: float) -> Array:
@@ -92,10 +92,13 @@ class ContinuationSettings:
     error_estimates:
         Error estimates from two resolutions (:mod:`.error_estimates`; only
         for problems that can refine their discretisation): ``"off"``;
-        ``"special"`` (default; special points: ``p_error`` of the location
-        and the point estimates there); ``"points"`` (also every point's
-        ``period_error`` etc. and ``multiplier_error``); ``"full"`` (also
-        the observables' ``error_<name>``). Stored in ``Point.accuracy``
+        ``"special"`` (special points: ``p_error`` of the location and the
+        point estimates there); ``"periods"`` (default; also every point's
+        ``period_error`` etc. from a cheap fine solve, and a
+        ``multiplier_error`` from fine multipliers at every few points,
+        with ``multiplier_error_p`` / ``_age`` saying where from);
+        ``"points"`` (every point its own fine multipliers too); ``"full"``
+        (also the observables' ``error_<name>``). Stored in ``Point.accuracy``
         and ``SpecialPoint.data``.
     verbose:
         Print one line per accepted point.
@@ -124,7 +127,7 @@ class ContinuationSettings:
     eig_vectors: bool = False
     compute_observables: bool = True
     krylov: dict[str, Any] = field(default_factory=dict)
-    error_estimates: str = "special"
+    error_estimates: str = "periods"
     verbose: bool = False
 
     @classmethod
