@@ -171,7 +171,8 @@ def one_point_once(m: FilamentModel, x0: np.ndarray, cls: type, **kw: Any) -> di
     """One continuation step 716.5 -> ~742.5 with stability and period means."""
     pb = problem(m, P0, cls=cls, period_means=PERIOD_MEANS, **kw)
     st = ContinuationSettings(ds=1.0, ds_max=1e9, ds_min=1e-9, max_points=2, adapt=False,
-                              newton_tol=1e-10, newton_max_iter=10, detect_events=False)
+                              newton_tol=1e-10, newton_max_iter=10, detect_events=False,
+                              error_estimates="off")  # the corrector path alone
     run = Continuation(pb, x0, P0, st)
     it = iter(run)
     first = next(it)
