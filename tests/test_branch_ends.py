@@ -243,8 +243,9 @@ def _plane_explorer(depth: int, ds: float = 0.05) -> Explorer:
     # ones (same parameter, same period 2π) by their period-mean norm
     pb = PeriodicOrbitProblem(m, "beta", steps=60, subspace="plane", nev=3, period_means=8)
     root = Seed(pb, np.array([np.sqrt(0.2), 0.0, 2 * np.pi]), 0.2, label="root")
+    # error estimates are not examined here (they doubled these tests' time)
     s = ContinuationSettings(ds=ds, ds_max=ds, p_min=0.1, p_max=0.9, max_points=10**9,
-                             event_tol=1e-10)
+                             event_tol=1e-10, error_estimates="off")
     return Explorer(root, engine_continuer,
                     ExplorerSettings(depth=depth, p_range=(0.1, 0.9), max_points=40),
                     default_switchers(), s, symmetries=m.symmetries)
