@@ -17,29 +17,13 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 import scipy.linalg as sla
+from test_filament_radau import N, _bent, _model
 
 from contfil.errors import ConvergenceError
-from contfil.models.filament import FilamentModel, Scene
 from contfil.models.filament.integrators import radau
 from contfil.models.filament.integrators.bdf2_tangent import normal_maps
 from contfil.models.filament.kernels import radau_solve as ks
 from contfil.models.filament.kernels import radau_step as kr
-
-N = 8
-
-
-def _model(dimension: str, actuation: str = "squirmer", strength: float = 100.0) -> FilamentModel:
-    return FilamentModel(Scene(N=N, strength=strength, actuation=actuation, dimension=dimension,
-                               name="t"))
-
-
-def _bent(m: FilamentModel) -> np.ndarray:
-    if m.planar:
-        return 0.15 * np.arange(1, N)
-    u = np.zeros(m.dim)
-    u[1::3] = 0.15 * np.arange(1, N)
-    u[0::3] = 0.05 * np.arange(1, N)
-    return u
 
 
 def test_transposed_lapack_factor_solves_the_system() -> None:
@@ -61,7 +45,7 @@ def test_transposed_lapack_factor_solves_the_system() -> None:
 @pytest.mark.parametrize(("dimension", "block"), [("planar", "own"), ("3d", "own"),
                                                   ("planar", "normal")])
 def test_block_solve_inverts_the_dense_stage_jacobian(dimension: str, block: str) -> None:
-    m = _model(dimension)
+    m = _model(dimension, "squirmer", 100.0)
     st = radau.RadauStepper(m, 0.002, p=m.default_params())
     st.reset(0.3 * np.random.default_rng(1).standard_normal(m.dim))
     Z = st._predict()[0] + 0.01 * np.random.default_rng(2).standard_normal((st.s, st._zmap.size))
@@ -69,7 +53,7 @@ def test_block_solve_inverts_the_dense_stage_jacobian(dimension: str, block: str
     par, flags = st.par, m.physics.flags
     zm, rm = st._zmap, st._rmap
     if block == "normal":  # the out-of-plane tangent block along a planar state (3D physics)
-        m3 = _model("3d")
+        m3 = _model("3d", "squirmer", 100.0)
         par, flags = m3.physics.params(radau._strength(st.par)), m3.physics.flags
         zm, rm = normal_maps(N)
     args = (Zf, st._q, st.dt, st.W, par, par, flags, zm, rm, st._scales, False)
@@ -135,7 +119,7 @@ def test_compiled_step_reaches_the_dense_newton_steps(dimension: str, actuation:
 
 
 def test_compiled_step_failure_raises_and_keeps_the_last_state() -> None:
-    m = _model("planar")
+    m = _model("planar", "squirmer", 100.0)
     p = m.default_params()
     st = radau.RadauStepper(m, 0.002, p=p, max_iter=1, tol=1e-14)
     st.reset(_bent(m))
