@@ -124,3 +124,32 @@ def test_failing_step_still_raises() -> None:
     with pytest.raises(ConvergenceError):
         flow_tangent(mp, _phi(mp, 1.5), mp.default_params(), 2.0, steps=1, tol=TOL,
                      max_iter=3, max_halvings=0)
+
+
+def test_radau_replayed_out_of_plane_block_equals_a_fresh_sweep() -> None:
+    from contfil.models.filament.integrators import radau
+
+    m3, mp = _models()
+    phi, p, T, n = _phi(mp), m3.default_params(), 0.04, 6
+    U = embed_planar(phi)
+    C = _normal_basis(mp.dim)
+    radau._TRAJECTORY.clear()
+    fresh = radau.flow_tangent(m3, U, p, T, C, steps=n)  # flows the plane itself
+    radau._TRAJECTORY.clear()
+    before = dict(radau.TRAJECTORY_STATS)
+    pl = radau.flow_tangent(mp, phi, p, T, steps=n, samples=3)  # the shooting sweep
+    rep = radau.flow_tangent(m3, U, p, T, C, steps=n)
+    again = radau.flow_tangent(mp, phi, p, T, steps=n, samples=3)  # replayed too
+    assert radau.TRAJECTORY_STATS["recorded"] == before["recorded"] + 1
+    assert radau.TRAJECTORY_STATS["replayed"] == before["replayed"] + 2
+    assert np.array_equal(rep.phi, fresh.phi) and np.array_equal(again.phi, pl.phi)
+    assert np.array_equal(again.samples, pl.samples)
+    assert np.array_equal(again.jvp, pl.jvp) and np.array_equal(again.dp, pl.dp)
+    assert _rel(rep.jvp, fresh.jvp) < 1e-13
+    v = C @ np.random.default_rng(3).standard_normal(C.shape[1])
+    v /= np.linalg.norm(v)
+    e = 1e-5
+    fd = (radau.flow(m3, U + e * v, p, T, steps=n) - radau.flow(m3, U - e * v, p, T, steps=n)) \
+        / (2 * e)
+    jv = rep.jvp @ np.linalg.lstsq(C, v, rcond=None)[0]
+    assert np.linalg.norm(fd - jv) < 1e-7 * np.linalg.norm(jv)
