@@ -216,20 +216,27 @@ def unit_costs(m: FilamentModel, x: np.ndarray, p: float) -> dict[str, float]:
     C[2::3, n1:] = np.eye(n1)
     unit = cpu(lambda: pl.flow(phi, q, T))
 
+    # each sweep from an empty record (no replay of a trajectory recorded by
+    # the previous call), except the block after the planar sweep, as in the point
     def fresh_block() -> None:
         _bt._TRAJECTORY.clear()  # no recorded planar trajectory: the block flows the plane
         fm.flow_tangent(U, q, T, C)
+
+    def fresh_planar() -> None:
+        _bt._TRAJECTORY.clear()
+        pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS)
 
     out = {
         "unit_cpu": unit,
         "flow_3d": cpu(lambda: fm.flow(U, q, T)) / unit,
         "sweep_3d_block_fresh": cpu(fresh_block, 2) / unit,
+        "sweep_planar": cpu(fresh_planar, 2) / unit,
         # as in the point: right after the planar sweep of the same orbit,
         # whose recorded trajectory the block replays
-        "sweep_planar": cpu(lambda: pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
         "sweep_3d_block": cpu(lambda: fm.flow_tangent(U, q, T, C), 2) / unit,
-        "sweep_planar_fd": cpu(lambda: FDColumnsFlow(pl.base).flow_tangent(
-            phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
+        "sweep_planar_fd": cpu(lambda: _bt._TRAJECTORY.clear() or FDColumnsFlow(
+            pl.base).flow_tangent(phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
+        # replayed after the planar one, as in that point
         "sweep_3d_block_fd": cpu(lambda: FDColumnsFlow(m).flow_tangent(U, q, T, C), 2) / unit,
     }
     return out
@@ -250,12 +257,15 @@ def radau_units(m: FilamentModel, x: np.ndarray, p: float, unit_cpu: float) -> d
         radau._TRAJECTORY.clear()  # no recorded planar trajectory: the block flows the plane
         fm.flow_tangent(U, q, T, C)
 
+    def fresh_planar() -> None:
+        radau._TRAJECTORY.clear()  # not a replay of the previous call's trajectory
+        pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS)
+
     return {
         "flow": cpu(lambda: pl.flow(phi, q, T)) / unit_cpu,
         "flow_3d": cpu(lambda: fm.flow(U, q, T)) / unit_cpu,
         "sweep_3d_block_fresh": cpu(fresh_block, 2) / unit_cpu,
-        "sweep_planar": cpu(lambda: pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS), 2)
-        / unit_cpu,
+        "sweep_planar": cpu(fresh_planar, 2) / unit_cpu,
         # right after the planar sweep of the same orbit: a replay, as in the point
         "sweep_3d_block": cpu(lambda: fm.flow_tangent(U, q, T, C), 2) / unit_cpu,
     }
