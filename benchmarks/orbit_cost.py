@@ -20,6 +20,15 @@ pseudo-arclength step from b1 = 716.5 to ~742.5, Newton tolerance 1e-10
 
 Each path runs twice; the lesser CPU counts.
 
+Since session 10 a sweep of the out-of-plane block replays the base
+trajectory the planar sweep of the same orbit recorded (no second flow;
+docs/decisions.md 33): such a block sweep counts at its cost measured right
+after the planar sweep (``sweep_3d_block_units``; ``sweeps_3d_replayed``
+says how many did), any other at the fresh cost
+(``sweep_3d_block_fresh_units``); every other sweep is timed from an empty
+record. ``cpu_per_point_units`` is the point's CPU over the unit, without
+any accounting.
+
 Cost unit: one planar BDF2 flow over a period at ``T/400`` (CPU measured
 here); a 3D flow, a planar tangent sweep and a 3D out-of-plane sweep count
 at their measured CPU ratios to it. Also measured: the period error of BDF2
