@@ -20,6 +20,15 @@ pseudo-arclength step from b1 = 716.5 to ~742.5, Newton tolerance 1e-10
 
 Each path runs twice; the lesser CPU counts.
 
+Since session 10 a sweep of the out-of-plane block replays the base
+trajectory the planar sweep of the same orbit recorded (no second flow;
+docs/decisions.md 33): such a block sweep counts at its cost measured right
+after the planar sweep (``sweep_3d_block_units``; ``sweeps_3d_replayed``
+says how many did), any other at the fresh cost
+(``sweep_3d_block_fresh_units``); every other sweep is timed from an empty
+record. ``cpu_per_point_units`` is the point's CPU over the unit, without
+any accounting.
+
 Cost unit: one planar BDF2 flow over a period at ``T/400`` (CPU measured
 here); a 3D flow, a planar tangent sweep and a 3D out-of-plane sweep count
 at their measured CPU ratios to it. Also measured: the period error of BDF2
@@ -89,6 +98,8 @@ from contfil.engine.linalg.newton import newton_dense  # noqa: E402
 from contfil.engine.problems.shooting import PeriodicOrbitProblem  # noqa: E402
 from contfil.models.filament import FilamentModel  # noqa: E402
 from contfil.models.filament.cycles import FixedStepFlow  # noqa: E402
+from contfil.models.filament.integrators import bdf2_tangent as _bt  # noqa: E402
+from contfil.models.filament.integrators import radau  # noqa: E402
 from contfil.models.filament.integrators.bdf2 import embed_planar  # noqa: E402
 from contfil.models.filament.integrators.bdf2_stepper import BDF2Stepper  # noqa: E402
 from contfil.models.filament.integrators.bdf2_tangent import _strength, normal_maps  # noqa: E402
@@ -178,16 +189,21 @@ def one_point_once(m: FilamentModel, x0: np.ndarray, cls: type, **kw: Any) -> di
     first = next(it)
     run.ds = (P1 - P0) / float(first.tangent[-1])  # the step lands near P1
     planar, full = pb.solve_model, pb.model
-    f0 = (planar.flow_calls, full.flow_calls, planar.tangent_calls, full.tangent_calls)
+    f0 = (planar.flow_calls, full.flow_calls, planar.tangent_calls, full.tangent_calls,
+          _bt.TRAJECTORY_STATS["replayed"] + radau.TRAJECTORY_STATS["replayed"])
     t0 = time.process_time()
     pt = next(it)
     cpu_point = time.process_time() - t0
-    f1 = (planar.flow_calls, full.flow_calls, planar.tangent_calls, full.tangent_calls)
+    f1 = (planar.flow_calls, full.flow_calls, planar.tangent_calls, full.tangent_calls,
+          _bt.TRAJECTORY_STATS["replayed"] + radau.TRAJECTORY_STATS["replayed"])
     d = [b - a for a, b in zip(f0, f1, strict=True)]
     nt = ~pt.trivial
     return {
         "p": pt.p, "T": pt.extra["period"], "cpu": cpu_point,
         "planar_flows": d[0], "flows_3d": d[1], "planar_sweeps": d[2], "sweeps_3d": d[3],
+        # BDF2 sweeps of the out-of-plane block that replayed the planar
+        # sweep's recorded base trajectory (no flow of their own)
+        "replays": d[4],
         "newton_iterations": int(pt.accuracy["newton_iterations"]),
         "residual": pt.accuracy["residual"],
         "multipliers": pt.eigenvalues[nt][:4],
@@ -208,15 +224,31 @@ def unit_costs(m: FilamentModel, x: np.ndarray, p: float) -> dict[str, float]:
     C[0::3, :n1] = np.eye(n1)
     C[2::3, n1:] = np.eye(n1)
     unit = cpu(lambda: pl.flow(phi, q, T))
-    return {
+
+    # each sweep from an empty record (no replay of a trajectory recorded by
+    # the previous call), except the block after the planar sweep, as in the point
+    def fresh_block() -> None:
+        _bt._TRAJECTORY.clear()  # no recorded planar trajectory: the block flows the plane
+        fm.flow_tangent(U, q, T, C)
+
+    def fresh_planar() -> None:
+        _bt._TRAJECTORY.clear()
+        pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS)
+
+    out = {
         "unit_cpu": unit,
         "flow_3d": cpu(lambda: fm.flow(U, q, T)) / unit,
-        "sweep_planar": cpu(lambda: pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
+        "sweep_3d_block_fresh": cpu(fresh_block, 2) / unit,
+        "sweep_planar": cpu(fresh_planar, 2) / unit,
+        # as in the point: right after the planar sweep of the same orbit,
+        # whose recorded trajectory the block replays
         "sweep_3d_block": cpu(lambda: fm.flow_tangent(U, q, T, C), 2) / unit,
-        "sweep_planar_fd": cpu(lambda: FDColumnsFlow(pl.base).flow_tangent(
-            phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
+        "sweep_planar_fd": cpu(lambda: _bt._TRAJECTORY.clear() or FDColumnsFlow(
+            pl.base).flow_tangent(phi, q, T, None, 0, PERIOD_MEANS), 2) / unit,
+        # replayed after the planar one, as in that point
         "sweep_3d_block_fd": cpu(lambda: FDColumnsFlow(m).flow_tangent(U, q, T, C), 2) / unit,
     }
+    return out
 
 
 def radau_units(m: FilamentModel, x: np.ndarray, p: float, unit_cpu: float) -> dict[str, float]:
@@ -230,11 +262,20 @@ def radau_units(m: FilamentModel, x: np.ndarray, p: float, unit_cpu: float) -> d
     C = np.zeros((U.size, 2 * n1))
     C[0::3, :n1] = np.eye(n1)
     C[2::3, n1:] = np.eye(n1)
+    def fresh_block() -> None:
+        radau._TRAJECTORY.clear()  # no recorded planar trajectory: the block flows the plane
+        fm.flow_tangent(U, q, T, C)
+
+    def fresh_planar() -> None:
+        radau._TRAJECTORY.clear()  # not a replay of the previous call's trajectory
+        pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS)
+
     return {
         "flow": cpu(lambda: pl.flow(phi, q, T)) / unit_cpu,
         "flow_3d": cpu(lambda: fm.flow(U, q, T)) / unit_cpu,
-        "sweep_planar": cpu(lambda: pl.flow_tangent(phi, q, T, None, 0, PERIOD_MEANS), 2)
-        / unit_cpu,
+        "sweep_3d_block_fresh": cpu(fresh_block, 2) / unit_cpu,
+        "sweep_planar": cpu(fresh_planar, 2) / unit_cpu,
+        # right after the planar sweep of the same orbit: a replay, as in the point
         "sweep_3d_block": cpu(lambda: fm.flow_tangent(U, q, T, C), 2) / unit_cpu,
     }
 
@@ -518,21 +559,26 @@ def main() -> None:
     flows_before = before["planar_flows"] + uc["flow_3d"] * before["flows_3d"]
 
     def flows(r: dict[str, Any], suffix: str = "") -> float:
+        # a 3D block sweep counts as a replay only where it replayed (else: fresh)
+        rep = min(r["replays"], r["sweeps_3d"])
+        fresh = uc["sweep_3d_block_fresh"] if not suffix else uc["sweep_3d_block" + suffix]
         return (r["planar_flows"] + uc["flow_3d"] * r["flows_3d"]
                 + uc["sweep_planar" + suffix] * r["planar_sweeps"]
-                + uc["sweep_3d_block" + suffix] * r["sweeps_3d"])
+                + uc["sweep_3d_block" + suffix] * rep + fresh * (r["sweeps_3d"] - rep))
 
     flows_after, flows_fdc = flows(after), flows(fdc, "_fd")
     for name, r in (("before", before), ("after", after), ("fdcols", fdc), ("radau", rad)):
         print(f"{name:6s}: b1 = {r['p']:.6f} T = {r['T']:.10f} Newton it = "
               f"{r['newton_iterations']} residual = {r['residual']:.1e} | planar flows "
               f"{r['planar_flows']}, 3D flows {r['flows_3d']}, planar sweeps "
-              f"{r['planar_sweeps']}, 3D sweeps {r['sweeps_3d']} | CPU {r['cpu']:.2f} s | "
+              f"{r['planar_sweeps']}, 3D sweeps {r['sweeps_3d']} ({r['replays']} replayed) "
+              f"| CPU {r['cpu']:.2f} s | "
               f"mu = {np.round(r['multipliers'], 6)} | mean E = {r['mean_E']:.8f}", flush=True)
     print(f"unit (planar flow T/400) = {uc['unit_cpu']:.4f} s CPU; 3D flow = "
           f"{uc['flow_3d']:.2f}, planar sweep = {uc['sweep_planar']:.2f} (difference "
           f"columns {uc['sweep_planar_fd']:.2f}), 3D out-of-plane sweep = "
-          f"{uc['sweep_3d_block']:.2f} (difference columns {uc['sweep_3d_block_fd']:.2f}) units")
+          f"{uc['sweep_3d_block']:.2f} replayed, {uc['sweep_3d_block_fresh']:.2f} fresh "
+          f"(difference columns {uc['sweep_3d_block_fd']:.2f}) units")
     print(f"flows per point: before {flows_before:.1f}, after {flows_after:.1f}, "
           f"with difference columns {flows_fdc:.1f}")
     bd = tangent_step_breakdown(m, after["x"], after["p"])
@@ -556,9 +602,11 @@ def main() -> None:
     rc = radau_costs(m, after["x"], after["p"], x0)
     # the Radau point's flows and sweeps in the BDF2 unit (measured here)
     ru = radau_units(m, rad["x"], rad["p"], uc["unit_cpu"])
+    rep = min(rad["replays"], rad["sweeps_3d"])
     flows_radau = (rad["planar_flows"] * ru["flow"] + rad["flows_3d"] * ru["flow_3d"]
                    + rad["planar_sweeps"] * ru["sweep_planar"]
-                   + rad["sweeps_3d"] * ru["sweep_3d_block"])
+                   + rep * ru["sweep_3d_block"]
+                   + (rad["sweeps_3d"] - rep) * ru["sweep_3d_block_fresh"])
     print(f"Radau IIA at {RADAU_STEPS} steps: period {rc['T'][RADAU_STEPS]:.14f}, reference "
           f"{rc['T_ref']:.14f}, relative error {rc['period_error']:.2e} (reference error "
           f"{rc['ref_error_estimate']:.1e}, observed order {rc['observed_order']:.2f}); flow "
@@ -575,7 +623,8 @@ def main() -> None:
           f"{rc['flow_dense_lu_vs_block_rel']:.1e} (relative)")
     print("Radau step parts, us: " + ", ".join(f"{k} {v:.1f}" for k, v in rb.items()))
     print(f"Radau point: units flow {ru['flow']:.2f}, 3D flow {ru['flow_3d']:.2f}, planar sweep "
-          f"{ru['sweep_planar']:.2f}, 3D block sweep {ru['sweep_3d_block']:.2f}; flows per "
+          f"{ru['sweep_planar']:.2f}, 3D block sweep {ru['sweep_3d_block']:.2f} replayed "
+          f"({ru['sweep_3d_block_fresh']:.2f} fresh, {rad['replays']} replayed); flows per "
           f"point {flows_radau:.2f}; CPU {rad['cpu']:.3f} s ({rad['cpu'] / after['cpu']:.2f} of "
           f"BDF2 T/400 exact tangents, {rad['cpu'] / before['cpu']:.4f} of before); "
           f"|dT| vs BDF2 {abs(rad['T'] - after['T']):.1e}")
@@ -602,12 +651,17 @@ def main() -> None:
         "radau_block_vs_dense_lu_rel": float(f"{rc['flow_dense_lu_vs_block_rel']:.2e}"),
         "radau_step_us": {k: round(v, 1) for k, v in rb.items()},
         "flows_per_point_radau": round(flows_radau, 2),
+        "radau_sweep_3d_block_units": round(ru["sweep_3d_block"], 2),
+        "radau_sweep_3d_block_fresh_units": round(ru["sweep_3d_block_fresh"], 2),
         "cpu_per_point_radau_s": round(rad["cpu"], 3),
         "cpu_per_point_radau_vs_bdf2": round(rad["cpu"] / after["cpu"], 3),
         "cpu_per_point_radau_vs_before": round(rad["cpu"] / before["cpu"], 4),
         "dT_radau_bdf2": float(f"{abs(rad['T'] - after['T']):.2e}"),
         "sweep_planar_units": round(uc["sweep_planar"], 2),
         "sweep_3d_block_units": round(uc["sweep_3d_block"], 2),
+        "sweep_3d_block_fresh_units": round(uc["sweep_3d_block_fresh"], 2),
+        "sweeps_3d_replayed": after["replays"],
+        "cpu_per_point_units": round(after["cpu"] / uc["unit_cpu"], 2),
         "flow_3d_units": round(uc["flow_3d"], 2),
         "dT_before_after": float(f"{diff_T:.2e}"),
         "dmu_before_after": float(f"{diff_mu:.2e}"),

@@ -41,7 +41,7 @@ from ..kernels import bdf2_tangent as _kt
 from ..kernels.effects import P_B1, P_F, P_SCALE
 from ..kernels.geometry import state_from_frames, tangents
 from ..kernels.quaternion import dexp_matrix
-from ..physics import embed_planar
+from ..physics import embed_planar, project_planar
 from . import default_steps
 from .bdf2_stepper import BDF2Stepper
 
@@ -84,6 +84,55 @@ def _is_normal_block(phys: Any, U: Array, V: Array) -> bool:
     """3D model, planar state, directions normal to the plane."""
     return (not phys.planar and not np.any(U[0::3]) and not np.any(U[2::3])
             and not np.any(V[1::3]))
+
+
+#: The last planar base trajectory a sweep recorded (one entry: its key, the
+#: frames ``q``, positions ``x`` and physical unknowns ``z`` of every step):
+#: the out-of-plane block of the same orbit replays it (:func:`flow_tangent`).
+_TRAJECTORY: dict[str, Any] = {}
+#: Counts of recorded and replayed base trajectories (benchmarks check them).
+TRAJECTORY_STATS = {"recorded": 0, "replayed": 0}
+
+
+def _trajectory_key(st: BDF2Stepper, n: int) -> tuple:
+    """What fixes a stepper's trajectory from its reset state: the physics
+    parameters and flags, the solver options, the selected unknowns, ``dt``,
+    the tolerance, the start (frames, positions, unknowns) and the steps."""
+    return (st.par.tobytes(), st.phys.flags.tobytes(), st._opts.tobytes(),
+            st._zmap.tobytes(), st._rmap.tobytes(), st.dt, st.tol, st._q.tobytes(),
+            st._x.tobytes(), st._xm1.tobytes(), st._zp.tobytes(), st._zpm1.tobytes(),
+            float(st._info[3]), int(n))
+
+
+def _stepper_state(st: BDF2Stepper, q: Array) -> Array:
+    """The model state (planar ``phi`` or 3D ``U``) of frames ``q`` (as ``st.state``)."""
+    U = state_from_frames(q)
+    return project_planar(U) if st.phys.planar else U
+
+
+def _python_sweep(st: BDF2Stepper, n: int, ph: Any, tz: Array, tr: Array, par: Array,
+                  dpar: Array, dth: Array, dx: Array, dxm1: Array, du: Array, ddt: Array,
+                  ds: Array, mode: int, every: int) -> list[Array]:
+    """The sweep step by step in Python (the stepper rescues a failed step by
+    sub-steps, and then the tangent is refused): the path of a failing step."""
+    N = ph.N
+    coef = np.empty(5)
+    scale = np.ones(6 * N)
+    samp: list[Array] = []
+    for k in range(n):
+        if every and k % every == 0:
+            samp.append(st.state)
+        qk, xk, xkm1, uk = st._q.copy(), st._x.copy(), st._xm1.copy(), st._zp.copy()
+        nres = len(st.rescued)
+        st._advance(1)
+        if len(st.rescued) > nres:
+            raise ConvergenceError(
+                f"flow_tangent: step {k} (dt = {st.dt:.3g}) needed sub-steps; the flow is not "
+                "smooth there, so it has no tangent (use more steps)")
+        _k._step_setup(k, st.dt, st.par, coef, scale)
+        _kt.tangent_step(st._zp, qk, xk, xkm1, uk, coef, par, dpar, ph.flags, tz, tr,
+                         scale, dth, dx, dxm1, du, ddt, ds, mode)
+    return samp
 
 
 def flow_tangent(
@@ -165,10 +214,11 @@ def flow_tangent(
         tz, tr = normal_maps(N)
         st = BDF2Stepper(ph.scene.replace(dimension="planar"), T / n, tol=tol,
                          strength=_strength(st.par), **stepper_kw)
-        st.reset(U0[1::3])
+        st_start = U0[1::3]
     else:
         tz, tr = st._zmap, st._rmap
-        st.reset(u)
+        st_start = u
+    st.reset(st_start)
     kdir = V.shape[1]
     nd = kdir + int(want_T) + int(want_p)
     nu, npos = (int(c) for c in _kt.reduced_counts(tz, tr, N))
@@ -193,31 +243,50 @@ def flow_tangent(
     # planar stepper carries the orbit
     par = ph.params(_strength(st.par))
     dpar = ph.params(_strength(st.par) + 1.0) - par
-    coef = np.empty(5)
-    scale = np.ones(6 * N)
-    samp: list[Array] = []
     every = n // samples if samples else 0
-    for k in range(n):
-        if every and k % every == 0:
-            samp.append(st.state)
-        qk, xk, xkm1, uk = st._q.copy(), st._x.copy(), st._xm1.copy(), st._zp.copy()
-        nres = len(st.rescued)
-        st._advance(1)
-        if len(st.rescued) > nres:
-            raise ConvergenceError(
-                f"flow_tangent: step {k} (dt = {st.dt:.3g}) needed sub-steps; the flow is not "
-                "smooth there, so it has no tangent (use more steps)")
-        _k._step_setup(k, st.dt, st.par, coef, scale)
-        _kt.tangent_step(st._zp, qk, xk, xkm1, uk, coef, par, dpar, ph.flags, tz, tr,
-                         scale, dth, dx, dxm1, du, ddt, ds, mode)
+    key = _trajectory_key(st, n)
+    cached = _TRAJECTORY.get("key") == key
+    if cached:
+        # the same base flow was swept just before (the planar shooting sweep
+        # of this orbit): only the tangent steps, along the recorded trajectory
+        tq, tx, tzs = _TRAJECTORY["q"], _TRAJECTORY["x"], _TRAJECTORY["z"]
+        _kt.replay(st.dt, st.par, tq, tx, tzs, par, dpar, ph.flags, tz, tr, dth, dx, dxm1,
+                   du, ddt, ds, mode)
+        TRAJECTORY_STATS["replayed"] += 1
+        q_end = tq[n]
+        samp = [_stepper_state(st, tq[k]) for k in range(0, n, every)] if every else []
+    else:
+        nrow = n + 1 if st.phys.planar else 0  # planar base flows are kept for a replay
+        tq = np.empty((nrow, N, 4))
+        tx = np.empty((nrow, N, 3))
+        tzs = np.empty((nrow, 6 * N))
+        samp_q = np.empty((samples if every else 0, N, 4))
+        done = _kt.sweep(n, st.dt, st._q, st._x, st._xm1, st._zp, st._zpm1, st._H, st.par,
+                         st.phys.flags, st._opts, st._zmap, st._rmap, st.tol, st._info, par,
+                         dpar, ph.flags, tz, tr, dth, dx, dxm1, du, ddt, ds, mode, every,
+                         samp_q, tq, tx, tzs)
+        if done < n:
+            # a step failed in the compiled sweep: redo it step by step, which
+            # rescues or reports it exactly as the flow does (and raises)
+            st.reset(st_start)
+            _python_sweep(st, n, ph, tz, tr, par, dpar, dth, dx, dxm1, du, ddt, ds, mode,
+                          every)
+            raise ConvergenceError(  # pragma: no cover - the step above raises
+                f"flow_tangent: step {done} failed in the compiled sweep only")
+        q_end = st._q
+        samp = [_stepper_state(st, qs) for qs in samp_q]
+        if nrow:
+            _TRAJECTORY.clear()
+            _TRAJECTORY.update(key=key, q=tq, x=tx, z=tzs)
+            TRAJECTORY_STATS["recorded"] += 1
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular step Jacobian)")
-    U1 = state_from_frames(st._q)
+    U1 = state_from_frames(q_end)
     full3 = np.zeros((U1.size, nd))
     full3[tz[:nu]] = dth
     dphi = _state_from_rotations(U1, full3)
     if ph.planar:
-        dphi, phi = dphi[1::3], st.state
+        dphi, phi = dphi[1::3], project_planar(U1)
     else:
         phi = U1
     return FlowTangent(

@@ -472,6 +472,27 @@ def flow(model: Any, u: Array, p: Array | None, T: float, steps: int | None = No
     return st.step(n)
 
 
+#: The last planar base trajectory a Radau sweep recorded (one entry: its
+#: key, the frames ``q`` at every step and the physical stage unknowns ``Z``
+#: of every step): the out-of-plane block of the same orbit replays it.
+_TRAJECTORY: dict[str, Any] = {}
+#: Counts of recorded and replayed base trajectories (benchmarks check them).
+TRAJECTORY_STATS = {"recorded": 0, "replayed": 0}
+
+
+def _trajectory_key(st: RadauStepper, n: int) -> tuple:
+    """What fixes a reset stepper's trajectory: physics parameters and flags,
+    method, solver options, ``dt``, the start frames and the steps."""
+    return (st.par.tobytes(), st.phys.flags.tobytes(), st._zmap.tobytes(), st.W.tobytes(),
+            st.dt, st.tol, st.max_iter, st.rate, st.reuse, st.newton, st._q.tobytes(), int(n))
+
+
+def _state_of(st: RadauStepper, q: Array) -> Array:
+    """The model state of frames ``q`` (as ``st.state``)."""
+    U = state_from_frames(q)
+    return project_planar(U) if st.phys.planar else U
+
+
 def flow_tangent(
     model: Any,
     u: Array,
@@ -537,20 +558,44 @@ def flow_tangent(
         ds[-1] = 1.0
     samp: list[Array] = []
     every = n // samples if samples else 0
+    key = _trajectory_key(st, n)
+    cached = _TRAJECTORY.get("key") == key
+    record = st.phys.planar and not cached  # planar base flows are kept for a replay
+    tq = _TRAJECTORY["q"] if cached else np.empty((n + 1 if record else 0, N, 4))
+    tZ = _TRAJECTORY["Z"] if cached else np.empty((n if record else 0, st.s, 6 * N))
+    if cached:
+        TRAJECTORY_STATS["replayed"] += 1
     for k in range(n):
-        if every and k % every == 0:
-            samp.append(st.state)
-        qk = st._q.copy()
-        Z = st._advance(1)
-        # (the stepper keeps its own Newton matrices, so phi is the flow's bit for bit)
+        if cached:
+            # the same base flow was swept just before (the planar shooting
+            # sweep of this orbit): only the tangent, along the recorded steps
+            qk, Zf = tq[k], tZ[k]
+        else:
+            if every and k % every == 0:
+                samp.append(st.state)
+            qk = st._q.copy()
+            # (the stepper keeps its own Newton matrices, so phi is the flow's bit for bit)
+            Zf = st._physical(st._advance(1))
+            if record:
+                tq[k], tZ[k] = qk, Zf
         try:
-            dth = _ks.tangent_step(st._physical(Z), qk, st.dt, st.W, st_par, st_dpar, flags,
+            dth = _ks.tangent_step(Zf, qk, st.dt, st.W, st_par, st_dpar, flags,
                                    tz, tr, st._scales, want_p, dth, ddt, ds)
         except ZeroDivisionError as exc:
             raise NonFiniteError(f"flow_tangent: {exc} at step {k}") from exc
+    if cached:
+        q_end = tq[n]
+        samp = [_state_of(st, tq[k]) for k in range(0, n, every)] if every else []
+    else:
+        q_end = st._q
+        if record:
+            tq[n] = st._q
+            _TRAJECTORY.clear()
+            _TRAJECTORY.update(key=key, q=tq, Z=tZ)
+            TRAJECTORY_STATS["recorded"] += 1
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular stage Jacobian)")
-    U1 = state_from_frames(st._q)
+    U1 = state_from_frames(q_end)
     full3 = np.zeros((U1.size, nd))
     full3[tz[:nu]] = dth
     dphi = _state_from_rotations(U1, full3)

@@ -62,11 +62,13 @@ from .bdf2_residual import (
     C_B1,
     C_DT,
     C_G,
+    N_COEF,
     frames_at,
     residual,
     unpack_loads,
     velocities,
 )
+from .bdf2_step import N_DIAG, _step_setup, advance
 from .effects import F_HYDRO, HYD_RPY, P_A, P_B1, P_DL, P_ETA, P_F, P_KB, P_KT
 from .frame_jacobian import velocity_frame_jacobian
 from .geometry import positions, tangents
@@ -344,6 +346,49 @@ def dpositions(t: np.ndarray, dth: np.ndarray, dL: float) -> np.ndarray:
 
 
 @njit(cache=True)
+def add_orientation_u(out: np.ndarray, zf: np.ndarray, Om: np.ndarray, zmap: np.ndarray,
+                      rinv: np.ndarray, nu: int, gdt: float) -> None:
+    """Add the explicit ``u`` dependence of the orientation rows,
+    ``E = I - g dt d_u dexp_inv(u_n, Omega_n)`` at fixed ``Omega``, to the
+    increment columns ``out[:, :nu]`` (selected rows and components only).
+
+    Parameters
+    ----------
+    out:
+        (nz, >= nu) scaled selected step Jacobian (or a zero block), updated in place.
+    zf:
+        The step's full physical unknowns (increments first).
+    Om:
+        (N, 3) angular velocities of the step's new frames.
+    zmap, rinv:
+        Selected unknowns (full indices) and the inverse row map (full row
+        -> selected row, -1 where not selected).
+    nu:
+        Selected increment unknowns.
+    gdt:
+        ``g dt`` of the step (or stage).
+    """
+    N = Om.shape[0]
+    u = np.empty(3)
+    w = np.empty(3)
+    for j in range(nu):
+        m = zmap[j] // 3  # segment m + 1
+        c = zmap[j] % 3
+        for k in range(3):
+            u[k] = zf[3 * m + k]
+            w[k] = Om[m + 1, k]
+        D = dexp_inv_du(u, w)
+        for r in range(3):
+            ii = rinv[3 * N + 3 * (m + 1) + r]
+            if ii < 0:
+                continue
+            v = -gdt * D[r, c]
+            if r == c:
+                v += 1.0
+            out[ii, j] += v
+
+
+@njit(cache=True)
 def _step_system(
     zf: np.ndarray,
     qk: np.ndarray,
@@ -395,23 +440,9 @@ def _step_system(
     # explicit u dependence E of the orientation rows: I - g dt d_u dexp_inv(u, Omega)
     # at fixed Omega (restricted to the selected components of each segment)
     E = np.zeros((nz, nu))
+    add_orientation_u(E, zf, Om, zmap, rinv, nu, gdt)
     u = np.empty(3)
     w = np.empty(3)
-    for j in range(nu):
-        m = zmap[j] // 3  # segment m + 1
-        c = zmap[j] % 3
-        for k in range(3):
-            u[k] = zf[3 * m + k]
-            w[k] = Om[m + 1, k]
-        D = dexp_inv_du(u, w)
-        for r in range(3):
-            ii = rinv[3 * N + 3 * (m + 1) + r]
-            if ii < 0:
-                continue
-            v = -gdt * D[r, c]
-            if r == c:
-                v += 1.0
-            E[ii, j] = v
     Rr = _reduced_block(Rt, zmap, nu)
     Br = _reduced_block(B, zmap, nu)
     rp = np.empty(6 * N)
@@ -616,3 +647,121 @@ def tangent_step(
         for d in range(nd):
             du[j, d] = dun[j, d]
             dth[j, d] = dthn[j, d]
+
+
+@njit(cache=True)
+def sweep(
+    n: int,
+    dt: float,
+    q: np.ndarray,
+    x: np.ndarray,
+    xm1: np.ndarray,
+    zp: np.ndarray,
+    zpm1: np.ndarray,
+    H: np.ndarray,
+    spar: np.ndarray,
+    sflags: np.ndarray,
+    opts: np.ndarray,
+    szmap: np.ndarray,
+    srmap: np.ndarray,
+    tol: float,
+    info: np.ndarray,
+    par: np.ndarray,
+    dpar: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    dth: np.ndarray,
+    dx: np.ndarray,
+    dxm1: np.ndarray,
+    du: np.ndarray,
+    ddt: np.ndarray,
+    ds: np.ndarray,
+    mode: int,
+    every: int,
+    samp_q: np.ndarray,
+    traj_q: np.ndarray,
+    traj_x: np.ndarray,
+    traj_z: np.ndarray,
+) -> int:
+    """A whole tangent sweep in one call: ``n`` BDF2 steps (:func:`.bdf2_step.advance`,
+    one at a time, the flow's own solves) from the stepper state ``q, x, xm1,
+    zp, zpm1, H, info`` (updated in place), each followed by
+    :func:`tangent_step` of the selected block (``par, dpar, flags, zmap,
+    rmap``: the tangent's physics, which may differ from the stepper's
+    ``spar, sflags``). Frames at steps ``0, every, 2 every, ...`` go to
+    ``samp_q`` (``every > 0``). The base trajectory is recorded for
+    :func:`replay` when ``traj_q`` has ``n + 1`` rows: frames ``traj_q[k]``
+    and positions ``traj_x[k]`` at step k (k = 0..n; ``traj_x[0]`` is also
+    the position before the first step) and the physical unknowns
+    ``traj_z[k]`` of step k (k = 0..n; ``traj_z[0]``: the start's). Returns
+    the steps taken (< n: the step failed, ``info`` says why; the caller
+    redoes the sweep in Python to rescue or report it).
+    """
+    N = q.shape[0]
+    coef = np.empty(N_COEF)
+    scale = np.ones(6 * N)
+    rec = traj_q.shape[0] == n + 1
+    qk = np.empty((N, 4))
+    xk = np.empty((N, 3))
+    xkm1 = np.empty((N, 3))
+    uk = np.empty(6 * N)
+    rq = np.empty((1, N, 4))
+    diag = np.zeros((1, N_DIAG))
+    if rec:
+        traj_q[0] = q
+        traj_x[0] = x
+        traj_z[0] = zp
+    for k in range(n):
+        if every > 0 and k % every == 0:
+            samp_q[k // every] = q
+        qk[:] = q
+        xk[:] = x
+        xkm1[:] = xm1
+        uk[:] = zp
+        if advance(1, k, dt, q, x, xm1, zp, zpm1, H, spar, sflags, opts, szmap, srmap, tol,
+                   0, 0, rq, diag, info) < 1:
+            return k
+        _step_setup(k, dt, spar, coef, scale)
+        tangent_step(zp, qk, xk, xkm1, uk, coef, par, dpar, flags, zmap, rmap, scale, dth, dx,
+                     dxm1, du, ddt, ds, mode)
+        if rec:
+            traj_q[k + 1] = q
+            traj_x[k + 1] = x
+            traj_z[k + 1] = zp
+    return n
+
+
+@njit(cache=True)
+def replay(
+    dt: float,
+    spar: np.ndarray,
+    traj_q: np.ndarray,
+    traj_x: np.ndarray,
+    traj_z: np.ndarray,
+    par: np.ndarray,
+    dpar: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    dth: np.ndarray,
+    dx: np.ndarray,
+    dxm1: np.ndarray,
+    du: np.ndarray,
+    ddt: np.ndarray,
+    ds: np.ndarray,
+    mode: int,
+) -> None:
+    """:func:`tangent_step` of the selected block over a base trajectory
+    recorded by :func:`sweep` (``traj_*``, ``n + 1`` rows; ``spar``: the
+    stepper's parameters, for the step coefficients and scaling): the same
+    tangent as :func:`sweep` on that trajectory, without flowing it again."""
+    n = traj_q.shape[0] - 1
+    N = traj_q.shape[1]
+    coef = np.empty(N_COEF)
+    scale = np.ones(6 * N)
+    for k in range(n):
+        xkm1 = traj_x[k - 1] if k >= 1 else traj_x[0]
+        _step_setup(k, dt, spar, coef, scale)
+        tangent_step(traj_z[k + 1], traj_q[k], traj_x[k], xkm1, traj_z[k], coef, par, dpar,
+                     flags, zmap, rmap, scale, dth, dx, dxm1, du, ddt, ds, mode)

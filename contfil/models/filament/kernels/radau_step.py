@@ -41,13 +41,13 @@ from .bdf2_tangent import (
     _reduced_block,
     _segment_blocks,
     _step_system,
+    add_orientation_u,
     dense_mobility,
     reduced_counts,
     residual_frame_jacobian,
 )
 from .effects import P_A, P_DL, P_ETA
 from .geometry import positions, tangents
-from .quaternion import dexp_inv_du
 
 
 def radau_tableau(s: int) -> tuple[np.ndarray, np.ndarray]:
@@ -293,8 +293,6 @@ def newton_blocks(
     for a in range(nz):
         rinv[rmap[a]] = a
     q = np.empty((N, 4))
-    u = np.empty(3)
-    w = np.empty(3)
     for i in range(s):
         zf = Zf[i]
         coef = _stage_coef(i, dt, W)
@@ -315,17 +313,7 @@ def newton_blocks(
         for a in range(nz):
             for b in range(nu):
                 Jd[i, a, b] = Ju[a, b]
-        for b in range(nu):
-            m = zmap[b] // 3  # segment m + 1
-            c = zmap[b] % 3
-            for k in range(3):
-                u[k] = zf[3 * m + k]
-                w[k] = Om[m + 1, k]
-            D = dexp_inv_du(u, w)
-            for r in range(3):
-                a = rinv[3 * N + 3 * (m + 1) + r]
-                if a >= 0:
-                    Jd[i, a, b] += (1.0 if r == c else 0.0) - gdt * D[r, c]
+        add_orientation_u(Jd[i], zf, Om, zmap, rinv, nu, gdt)
         AB = arm_matrix(t, zmap, rmap, nu, npos, dL) @ Br
         for a in range(nz):
             for b in range(nu):
