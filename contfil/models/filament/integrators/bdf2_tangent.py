@@ -245,11 +245,12 @@ def flow_tangent(
     dpar = ph.params(_strength(st.par) + 1.0) - par
     every = n // samples if samples else 0
     key = _trajectory_key(st, n)
-    cached = _TRAJECTORY.get("key") == key
+    rec = dict(_TRAJECTORY)  # one snapshot: another thread may replace the record
+    cached = rec.get("key") == key
     if cached:
         # the same base flow was swept just before (the planar shooting sweep
         # of this orbit): only the tangent steps, along the recorded trajectory
-        tq, tx, tzs = _TRAJECTORY["q"], _TRAJECTORY["x"], _TRAJECTORY["z"]
+        tq, tx, tzs = rec["q"], rec["x"], rec["z"]
         _kt.replay(st.dt, st.par, tq, tx, tzs, par, dpar, ph.flags, tz, tr, dth, dx, dxm1,
                    du, ddt, ds, mode)
         TRAJECTORY_STATS["replayed"] += 1

@@ -559,10 +559,11 @@ def flow_tangent(
     samp: list[Array] = []
     every = n // samples if samples else 0
     key = _trajectory_key(st, n)
-    cached = _TRAJECTORY.get("key") == key
+    rec = dict(_TRAJECTORY)  # one snapshot: another thread may replace the record
+    cached = rec.get("key") == key
     record = st.phys.planar and not cached  # planar base flows are kept for a replay
-    tq = _TRAJECTORY["q"] if cached else np.empty((n + 1 if record else 0, N, 4))
-    tZ = _TRAJECTORY["Z"] if cached else np.empty((n if record else 0, st.s, 6 * N))
+    tq = rec["q"] if cached else np.empty((n + 1 if record else 0, N, 4))
+    tZ = rec["Z"] if cached else np.empty((n if record else 0, st.s, 6 * N))
     if cached:
         TRAJECTORY_STATS["replayed"] += 1
     for k in range(n):
