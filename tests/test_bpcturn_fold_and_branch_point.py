@@ -91,7 +91,7 @@ def test_rpo_pitchfork_of_cycles_at_its_exact_value():
     bp = bps[0]
     assert bp.point.p == pytest.approx(a * a - 2 * a, abs=TOL)
     assert bp.data["multiplier"] == pytest.approx(1.0, abs=1e-6)
-    assert bp.data["test_value_relative"] < 1e-3
+    assert bp.data["test_value_relative"] < 1e-3 and bp.data["vanishes"]
     # the critical mode is the symmetry-breaking w direction
     v = np.abs(np.asarray(bp.data["v_re"]))
     assert v[4] / np.linalg.norm(v) == pytest.approx(1.0, abs=1e-6)
@@ -110,6 +110,7 @@ def test_fold_and_branch_point_in_one_step_both_reported():
     assert bps[0].point.p == pytest.approx(a * a - 2 * a, abs=TOL)
     assert folds[0].point.p == pytest.approx(-1.0, abs=TOL)
     assert folds[0].data["bp_test_relative"] > ZERO_FRACTION
+    assert bps[0].data["vanishes"]
 
 
 class _Dense:
@@ -123,13 +124,17 @@ def _ctx(log_det: float, sign: float) -> EventContext:
 
 
 @pytest.mark.parametrize("scale", [0.0, -800.0])
-def test_a_determinant_sign_change_without_a_zero_is_no_branch_point(scale):
+def test_branch_point_test_value_relative_to_the_bracket_is_scale_free(scale):
     """Whatever the determinant's magnitude (-800 in log: below any double),
-    a localised point is a branch point only where it vanishes relative to
-    the bracket ends; a jump in sign (a tangent reversed in the step) is not."""
+    the stored relative value says whether it vanished at the localised
+    point (a zero) or merely changed sign there (a jump)."""
     ev = BranchPointEvent()
     left, right = _ctx(scale - 1.0, 1.0), _ctx(scale - 2.0, -1.0)
-    assert ev.special_point_data(_ctx(scale - 1.5, -1.0), 0, left, right) is None
-    kind, data = ev.special_point_data(_ctx(scale - 30.0, -1.0), 0, left, right)
+    data = ev.special_point_data(_ctx(scale - 1.5, -1.0), 0, left, right)[1]
+    assert data["test_value_relative"] == pytest.approx(np.exp(0.5), rel=1e-12)
+    assert data["vanishes"] is False
+    data = ev.special_point_data(_ctx(scale - 30.0, -1.0), 0, left, right)[1]
     assert data["test_value_relative"] == pytest.approx(np.exp(-28.0), rel=1e-12)
-    assert ev.special_point_data(_ctx(-np.inf, 1.0), 0, left, right)[1]["test_value"] == 0.0
+    assert data["vanishes"] is True
+    data = ev.special_point_data(_ctx(-np.inf, 1.0), 0, left, right)[1]
+    assert data["test_value"] == 0.0 and data["test_value_relative"] == 0.0

@@ -198,10 +198,7 @@ class CycleBranchPointEvent(BranchPointEvent):
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         if self._dense(ctx):
-            found = super().special_point_data(ctx, j, ctx0, ctx1)
-            if found is None:
-                return None  # a sign change without a zero (see the base class)
-            kind, data = found
+            kind, data = super().special_point_data(ctx, j, ctx0, ctx1)
         else:
             kind, data = self.kind, {"test_value": float(self.localiser(ctx0, ctx1, j)(ctx)),
                                      "switchable": True, "tangent": ctx.tangent.copy()}
