@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from scipy.sparse.linalg import splu
 
 from contfil.engine.branch import BRANCH_POINT
-from contfil.engine.events.base import Event, EventContext
+from contfil.engine.events.base import LOG_DET_CLIP, Event, EventContext
 from contfil.engine.linalg.bordered import bordered_sparse, solve_minimally_augmented
 
 Array = NDArray[np.float64]
@@ -26,8 +26,28 @@ N_BORDERS = 3
 #: heading for a pole of ``s``, not a zero (the iteration is stopped).
 POLE_CAP = 2.0
 #: A localised point is a branch point only when ``|s|`` fell below this
-#: fraction of both bracket ends (a zero); otherwise it was a pole.
+#: fraction of both bracket ends (a zero); otherwise it was a pole (bordered
+#: test). The dense test uses it to tell a zero of the determinant from a
+#: jump (data ``vanishes``) and a fold from a branch point at the same place.
 ZERO_FRACTION = 0.1
+
+
+def dense_relative_test(ctx: EventContext, ctx0: EventContext, ctx1: EventContext) -> float:
+    """``|det M|`` at ``ctx`` over the smaller of its values at the bracket
+    ends ``ctx0, ctx1`` (dense problems; ``nan`` without determinants).
+
+    Scale-free: the scaled determinant itself is a product of ``n + 1``
+    normalised singular values (1e-168 on a 60-unknown shooting system is an
+    ordinary value, not a zero); this ratio is small only where the
+    determinant vanishes, and near 1 where it merely changed sign."""
+    ends = min(ctx0.log_det, ctx1.log_det)
+    if np.isnan(ctx.log_det) or np.isnan(ends):
+        return float("nan")
+    if ctx.log_det == -np.inf:
+        return 0.0
+    if ends == -np.inf:
+        return float("inf")
+    return float(np.exp(min(ctx.log_det - ends, LOG_DET_CLIP)))
 
 
 class BranchPointEvent(Event):
@@ -362,7 +382,17 @@ class BranchPointEvent(Event):
         data: dict[str, Any] = {"switchable": True, "tangent": ctx.tangent.copy(),
                                 "tangent_in": ctx0.tangent.copy()}
         if self._dense(ctx):
+            # Scale-free: |det| here over the bracket ends. A localised sign
+            # change where the determinant does not vanish (``vanishes``
+            # false) is a jump, not a zero: a tangent reversed inside the
+            # step, or trial points of the localisation on another branch
+            # near a branch point (Freire's pitchfork 2e-8 from a fold,
+            # tests/test_collocation_published.py). It is kept, flagged:
+            # rejecting it loses that genuine pitchfork.
+            rel = dense_relative_test(ctx, ctx0, ctx1)
             data["test_value"] = float(self.values(ctx)[0])
+            data["test_value_relative"] = rel
+            data["vanishes"] = bool(rel <= ZERO_FRACTION)
             return self.kind, data
         if not self._bordered(ctx) or not self._bs:
             data["test_value"] = self._spectral(ctx)[1]

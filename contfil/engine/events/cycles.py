@@ -38,6 +38,7 @@ from contfil.engine.branch import (
     PERIOD_DOUBLING,
     TORUS,
 )
+from contfil.engine.events.branch_point import ZERO_FRACTION, dense_relative_test
 from contfil.engine.events.cycle_ends import (
     RotatingWaveCollapseEvent,
     SubspaceReentryEvent,
@@ -85,14 +86,31 @@ __all__ = [
 
 
 class CycleFoldEvent(FoldEvent):
-    """Fold (limit point) of cycles: ``τ_p`` changes sign."""
+    """Fold (limit point) of cycles: ``τ_p`` changes sign.
+
+    A branch point found in the same step does not hide the fold: a branch
+    can pass a branch point and turn a little further on within one step
+    (tip SF's drifting branch: a pitchfork at b1 = 2213.0495 and the turn at
+    2212.98). The fold is the branch point itself only where the branch turns
+    *at* it (a symmetry-broken branch merging back into its parent); dense
+    problems tell that from the branch-point determinant, which vanishes at
+    the localised fold then (:func:`dense_relative_test` below
+    ``ZERO_FRACTION``), and the branch-point event reports it. The
+    multiplier test of matrix-free problems never fires in a step where
+    ``τ_p`` flips, and a subspace-breaking pitchfork is another mode than
+    the fold's, so neither duplicates a fold.
+    """
 
     def __init__(self) -> None:
-        super().__init__(kind=CYCLE_FOLD, name="cycle_fold")
-        self.suppressed_by = ("cycle_branch_point",)
+        super().__init__(kind=CYCLE_FOLD, name="cycle_fold", suppressed_by=())
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
+        rel = dense_relative_test(ctx, ctx0, ctx1)
+        if rel <= ZERO_FRACTION:
+            return None  # the turn is a branch point (reported as one)
         kind, data = super().special_point_data(ctx, j, ctx0, ctx1)
+        if np.isfinite(rel):
+            data["bp_test_relative"] = rel
         data.update(_critical_vector(ctx.stability_with_vectors(), 1.0))
         return kind, data
 
