@@ -24,7 +24,9 @@ longer); ``--steps`` the BDF2 steps per period of the starting orbit;
 without simulating again; ``--index`` the start point on the branch
 (default the one nearest ``--p``: on a branch through folds, e.g. tip SF's
 beating -> inter-beating -> buckled-beating in ``tip_sf_high2``, that may
-be the wrong state).
+be the wrong state); ``--planar`` simulates the planar (x-z) reduced model
+instead, started from the stored (3-D, planar) orbit projected onto the
+plane and pushed within it (planar chaos cannot leave the plane).
 
 Prints the label, its evidence and one JSON line.
 """
@@ -69,6 +71,8 @@ def main() -> None:
     ap.add_argument("--index", type=int, default=None,
                     help="start from this point of the branch (default: the point nearest --p; "
                          "a branch through folds passes a parameter several times)")
+    ap.add_argument("--planar", action="store_true",
+                    help="simulate the planar reduced model (push within the plane)")
     ap.add_argument("--from-log", type=Path, default=None,
                     help="no simulation: store (with --store) the result printed by an earlier "
                          "run of this script (its output file, last JSON line)")
@@ -92,12 +96,23 @@ def main() -> None:
     params = np.asarray(pt.params, dtype=float).copy()
     ip = list(model.param_names).index(br.param)
     params[ip] = args.p
-    # a small out-of-plane push, so that a planar orbit is not kept planar by symmetry
-    (sub,) = model.symmetries.invariant_subspaces.values()
+    subs = list(model.symmetries.invariant_subspaces.values())
     rng = np.random.default_rng(args.seed)
-    v = rng.standard_normal(model.dim)
-    w = v - np.asarray(sub.embed(np.asarray(sub.project(v))))
-    u0 = np.asarray(pt.u, dtype=float) + 1e-4 * w / np.linalg.norm(w)
+    if args.planar or not subs:
+        # the planar reduced model from the stored orbit's projection, pushed within the plane
+        u = np.asarray(pt.u, dtype=float)
+        if subs:
+            model = subs[0].reduced_model()
+            if u.size != model.dim:
+                u = np.asarray(subs[0].project(u), dtype=float)
+        w = rng.standard_normal(model.dim)
+        u0 = u + 1e-4 * w / np.linalg.norm(w)
+    else:
+        # a small out-of-plane push, so that a planar orbit is not kept planar by symmetry
+        (sub,) = subs
+        v = rng.standard_normal(model.dim)
+        w = v - np.asarray(sub.embed(np.asarray(sub.project(v))))
+        u0 = np.asarray(pt.u, dtype=float) + 1e-4 * w / np.linalg.norm(w)
     t0 = time.perf_counter()
     samples_per_period = 16
     res, node = classify_run(model, u0, params, dt, args.periods * samples_per_period,
@@ -108,10 +123,11 @@ def main() -> None:
     ev = node["evidence"]
     ev.update({"start_branch": args.branch, "start_index": k, "start_p": float(pt.p),
                "wall_s": wall, "period_of_start_orbit": T, "seed": args.seed,
-               "steps_per_period": steps, "run": str(run)})
-    out = {"model": args.model, "p": args.p, "label": res.label, "wall_s": round(wall, 1),
+               "steps_per_period": steps, "run": str(run), "planar": bool(args.planar)})
+    name = args.model + ("_planar" if args.planar else "")
+    out = {"model": name, "p": args.p, "label": res.label, "wall_s": round(wall, 1),
            "evidence": ev}
-    print(f"{args.model} at {br.param} = {args.p}: {res.label} ({wall:.0f} s); "
+    print(f"{name} at {br.param} = {args.p}: {res.label} ({wall:.0f} s); "
           f"reasons {ev['reasons']}; Lyapunov {ev.get('lyapunov')} ± {ev.get('lyapunov_error')}",
           flush=True)
     if args.store:
