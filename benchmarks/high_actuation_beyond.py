@@ -26,7 +26,9 @@ without simulating again; ``--index`` the start point on the branch
 beating -> inter-beating -> buckled-beating in ``tip_sf_high2``, that may
 be the wrong state); ``--planar`` simulates the planar (x-z) reduced model
 instead, started from the stored (3-D, planar) orbit projected onto the
-plane and pushed within it (planar chaos cannot leave the plane).
+plane and pushed within it (planar chaos cannot leave the plane);
+``--save`` writes the record's spectrum, section points and Lyapunov
+history to an ``.npz`` (plotted by ``benchmarks/chaos_spectra.py``).
 
 Prints the label, its evidence and one JSON line.
 """
@@ -43,6 +45,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from contfil.analysis.classify import AttractorClass  # noqa: E402
 from contfil.app.spec import load_spec  # noqa: E402
 from contfil.app.study import build_model  # noqa: E402
 from contfil.models.filament.longrun import classify_run  # noqa: E402
@@ -73,6 +76,8 @@ def main() -> None:
                          "a branch through folds passes a parameter several times)")
     ap.add_argument("--planar", action="store_true",
                     help="simulate the planar reduced model (push within the plane)")
+    ap.add_argument("--save", type=Path, default=None,
+                    help="write spectrum, section points and Lyapunov history here (.npz)")
     ap.add_argument("--from-log", type=Path, default=None,
                     help="no simulation: store (with --store) the result printed by an earlier "
                          "run of this script (its output file, last JSON line)")
@@ -133,7 +138,25 @@ def main() -> None:
     if args.store:
         out["state"] = _store(run, br.param, res.label, args.p, ev, args.born_from,
                               args.branch, k)
-    print(json.dumps(out, default=str))
+    print(json.dumps(out, default=str), flush=True)
+    if args.save is not None:
+        _save(args.save, res, out)
+
+
+def _save(path: Path, res: AttractorClass, out: dict) -> None:
+    """The record's spectrum, section points and Lyapunov history, as ``.npz``."""
+    data: dict[str, object] = {"summary": json.dumps(out, default=str)}
+    sp = res.spectrum
+    if sp is not None:
+        data.update(frequencies=sp.frequencies, psd=sp.psd, peaks=sp.peaks, bases=sp.bases)
+    sec = res.section
+    data.update(section_recent=sec.recent, section_reservoir=sec.reservoir)
+    ly = res.lyapunov
+    if ly is not None:
+        data.update(lyapunov_history_steps=ly.history_steps, lyapunov_history=ly.history,
+                    lyapunov_block_means=ly.block_means, lyapunov_dt=ly.dt)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **data)
 
 
 def _store(run: Path, param: str, label: str, p: float, ev: dict, born_from: str | None,
