@@ -24,7 +24,11 @@ longer); ``--steps`` the BDF2 steps per period of the starting orbit;
 without simulating again; ``--index`` the start point on the branch
 (default the one nearest ``--p``: on a branch through folds, e.g. tip SF's
 beating -> inter-beating -> buckled-beating in ``tip_sf_high2``, that may
-be the wrong state).
+be the wrong state); ``--planar`` simulates the planar (x-z) reduced model
+instead, started from the stored (3-D, planar) orbit projected onto the
+plane and pushed within it (planar chaos cannot leave the plane);
+``--save`` writes the record's spectrum, section points and Lyapunov
+history to an ``.npz`` (plotted by ``benchmarks/chaos_spectra.py``).
 
 Prints the label, its evidence and one JSON line.
 """
@@ -41,6 +45,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from contfil.analysis.classify import AttractorClass  # noqa: E402
 from contfil.app.spec import load_spec  # noqa: E402
 from contfil.app.study import build_model  # noqa: E402
 from contfil.models.filament.longrun import classify_run  # noqa: E402
@@ -69,6 +74,10 @@ def main() -> None:
     ap.add_argument("--index", type=int, default=None,
                     help="start from this point of the branch (default: the point nearest --p; "
                          "a branch through folds passes a parameter several times)")
+    ap.add_argument("--planar", action="store_true",
+                    help="simulate the planar reduced model (push within the plane)")
+    ap.add_argument("--save", type=Path, default=None,
+                    help="write spectrum, section points and Lyapunov history here (.npz)")
     ap.add_argument("--from-log", type=Path, default=None,
                     help="no simulation: store (with --store) the result printed by an earlier "
                          "run of this script (its output file, last JSON line)")
@@ -92,12 +101,23 @@ def main() -> None:
     params = np.asarray(pt.params, dtype=float).copy()
     ip = list(model.param_names).index(br.param)
     params[ip] = args.p
-    # a small out-of-plane push, so that a planar orbit is not kept planar by symmetry
-    (sub,) = model.symmetries.invariant_subspaces.values()
+    subs = list(model.symmetries.invariant_subspaces.values())
     rng = np.random.default_rng(args.seed)
-    v = rng.standard_normal(model.dim)
-    w = v - np.asarray(sub.embed(np.asarray(sub.project(v))))
-    u0 = np.asarray(pt.u, dtype=float) + 1e-4 * w / np.linalg.norm(w)
+    if args.planar or not subs:
+        # the planar reduced model from the stored orbit's projection, pushed within the plane
+        u = np.asarray(pt.u, dtype=float)
+        if subs:
+            model = subs[0].reduced_model()
+            if u.size != model.dim:
+                u = np.asarray(subs[0].project(u), dtype=float)
+        w = rng.standard_normal(model.dim)
+        u0 = u + 1e-4 * w / np.linalg.norm(w)
+    else:
+        # a small out-of-plane push, so that a planar orbit is not kept planar by symmetry
+        (sub,) = subs
+        v = rng.standard_normal(model.dim)
+        w = v - np.asarray(sub.embed(np.asarray(sub.project(v))))
+        u0 = np.asarray(pt.u, dtype=float) + 1e-4 * w / np.linalg.norm(w)
     t0 = time.perf_counter()
     samples_per_period = 16
     res, node = classify_run(model, u0, params, dt, args.periods * samples_per_period,
@@ -108,16 +128,35 @@ def main() -> None:
     ev = node["evidence"]
     ev.update({"start_branch": args.branch, "start_index": k, "start_p": float(pt.p),
                "wall_s": wall, "period_of_start_orbit": T, "seed": args.seed,
-               "steps_per_period": steps, "run": str(run)})
-    out = {"model": args.model, "p": args.p, "label": res.label, "wall_s": round(wall, 1),
+               "steps_per_period": steps, "run": str(run), "planar": bool(args.planar)})
+    name = args.model + ("_planar" if args.planar else "")
+    out = {"model": name, "p": args.p, "label": res.label, "wall_s": round(wall, 1),
            "evidence": ev}
-    print(f"{args.model} at {br.param} = {args.p}: {res.label} ({wall:.0f} s); "
+    print(f"{name} at {br.param} = {args.p}: {res.label} ({wall:.0f} s); "
           f"reasons {ev['reasons']}; Lyapunov {ev.get('lyapunov')} ± {ev.get('lyapunov_error')}",
           flush=True)
     if args.store:
         out["state"] = _store(run, br.param, res.label, args.p, ev, args.born_from,
                               args.branch, k)
-    print(json.dumps(out, default=str))
+    print(json.dumps(out, default=str), flush=True)
+    if args.save is not None:
+        _save(args.save, res, out)
+
+
+def _save(path: Path, res: AttractorClass, out: dict) -> None:
+    """The record's spectrum, section points and Lyapunov history, as ``.npz``."""
+    data: dict[str, object] = {"summary": json.dumps(out, default=str)}
+    sp = res.spectrum
+    if sp is not None:
+        data.update(frequencies=sp.frequencies, psd=sp.psd, peaks=sp.peaks, bases=sp.bases)
+    sec = res.section
+    data.update(section_recent=sec.recent, section_reservoir=sec.reservoir)
+    ly = res.lyapunov
+    if ly is not None:
+        data.update(lyapunov_history_steps=ly.history_steps, lyapunov_history=ly.history,
+                    lyapunov_block_means=ly.block_means, lyapunov_dt=ly.dt)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **data)
 
 
 def _store(run: Path, param: str, label: str, p: float, ev: dict, born_from: str | None,

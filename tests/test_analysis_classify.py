@@ -368,3 +368,34 @@ def test_rossler_phase_coherent_chaos() -> None:
     res_s = classify_attractor(_rk4(ROSSLER, h), [1.0, 1.0, 0.0], 40_000, h, transient=2000)
     assert res_s.spectrum is not None and res_s.spectrum.discrete_fraction < 0.98
     assert res_s.label == "chaotic", res_s.reasons
+
+
+def test_one_base_that_explains_any_peak_does_not_make_a_torus_periodic() -> None:
+    """An exact 2-torus (f2/f1 = 1 + sqrt 6.6, irrational) whose strongest
+    line f1 is only 8 bins of the spectrum's resolution: the 64 harmonics of
+    f1 (folded about Nyquist) cover the whole frequency axis (chance fit 1),
+    so f1 alone "explains" every peak. Its 128 section crossings are all
+    distinct: quasiperiodic, not periodic (the fallback "spectrum has one
+    base" called it periodic; tip FF at f = 480, session 10). A cycle with
+    the same low base keeps its label (its section points form clusters)."""
+    f1 = 0.01574
+    w = 2 * np.pi * np.array([f1, f1 * (1 + np.sqrt(6.6))])
+    obs = lambda u: u[0] + 0.8 * u[3] + 0.4 * u[0] * u[3] + 0.3 * u[1] ** 3 + 0.2 * u[2] ** 2 * u[0]  # noqa: E731
+
+    def torus(n: int):
+        for k in range(n):
+            yield np.r_[np.cos(w * k), np.sin(w * k)]
+
+    res = classify_samples(torus(3200), 1.0, 3200, observable=obs)
+    assert res.spectrum is not None
+    assert res.spectrum.bases.size == 1 and res.spectrum.chance_fit > 0.9  # the fault's premise
+    assert res.section.n_distinct == res.section.n_crossings > 32
+    assert res.label == "quasiperiodic", res.reasons
+
+    def cycle(n: int):
+        for k in range(n):
+            ph = w[0] * k
+            yield np.r_[np.cos(ph), np.sin(ph), np.cos(2 * ph), np.sin(3 * ph)]
+
+    cyc = classify_samples(cycle(3200), 1.0, 3200, observable=obs)
+    assert cyc.label == "periodic", cyc.reasons

@@ -714,6 +714,13 @@ def _decide(
                           spectrum, lyap, final)
 
 
+# Largest chance fit (share of the frequency axis the bases' accepted
+# combinations cover) at which one base's explanation of the peaks is taken as
+# evidence of a single frequency: the coverage up to which
+# :func:`integer_combinations` admits a third base.
+_MAX_CHANCE_FIT = 0.2
+
+
 def _label(
     u_mean: Vec, u_std: Vec, inv_mean: Vec | None, inv_std: Vec | None,
     section: SectionEvidence, spectrum: SpectrumEvidence | None, lyap: LyapunovResult | None,
@@ -777,6 +784,19 @@ def _label(
             f"{expo}; {n_x} of {spectrum.peaks.size} peaks are "
             f"combinations of the bases (a further frequency or higher orders explain the rest)"]
     if spec_kind == "periodic" and nc >= 3:
+        assert spectrum is not None
+        if nd > max_period and not spectrum.chance_fit <= _MAX_CHANCE_FIT:
+            # One base whose harmonics (up to 64, folded about Nyquist) cover
+            # the frequency axis explains a peak at any frequency: at this
+            # resolution it is no evidence of a single frequency, and the
+            # section's many distinct points say the orbit is no cycle. A
+            # discrete spectrum with an exponent that is not positive (or
+            # none) is a torus (as the unresolved rule above).
+            return "quasiperiodic", reasons + [
+                f"discrete spectrum ({spectrum.discrete_fraction:.4f} of the power in peaks) "
+                f"whose one base explains any peak (its harmonics cover "
+                f"{spectrum.chance_fit:.2f} of the axis) and {nd} distinct section points: "
+                f"not a cycle"]
         # Section says many points but the spectrum one base: a slow drift or
         # a long period; call it by the spectrum.
         return "periodic", reasons + ["spectrum has one base frequency"]
