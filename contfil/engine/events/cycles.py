@@ -46,8 +46,8 @@ from contfil.engine.events.cycle_ends import (
 from contfil.engine.events.multipliers import (
     _critical_vector,
     _is_real,
-    _log_nearest_circle,
     _nontrivial,
+    crossing_localiser,
     off_trivial,
     resolved_angle,
     subspace_class,
@@ -194,7 +194,7 @@ class CycleBranchPointEvent(BranchPointEvent):
             s0 = self._orientation(ctx0)
             return lambda ctx: g(ctx) * self._orientation(ctx) * s0
 
-        return lambda ctx: _log_nearest_circle(self._real(ctx).real)
+        return crossing_localiser(lambda ctx: self._real(ctx).real, ctx0, ctx1)
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         if self._dense(ctx):
@@ -235,7 +235,7 @@ class _MultiplierEvent(Event):
         return [0] if (v0[0] != v1[0] and v0[1] != v1[1]) else []
 
     def localiser(self, ctx0: EventContext, ctx1: EventContext, j: int) -> Callable:
-        return lambda ctx: _log_nearest_circle(self._candidates(ctx.stability))
+        return crossing_localiser(lambda ctx: self._candidates(ctx.stability), ctx0, ctx1)
 
 
 class PeriodDoublingEvent(_MultiplierEvent):
