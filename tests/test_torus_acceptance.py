@@ -76,19 +76,26 @@ class ExactTorusModel(FunctionModel):
 
     def flow_tangent(self, u, q, T, V=None, param_index=None, samples=0):  # noqa: ANN001, ANN201
         self.sweeps += 1
-        u, q = np.asarray(u, float), np.asarray(q, float)
-        V = np.eye(4) if V is None else np.asarray(V, float).reshape(4, -1)
-        jvp = np.column_stack([np.imag(_flow(u + 1j * CS * v, q, T)) / CS for v in V.T])
-        dT = np.imag(_flow(u, q, T + 1j * CS)) / CS
-        dp = None
-        if param_index is not None:
-            qc = q.astype(complex)
-            qc[param_index] += 1j * CS
-            dp = np.imag(_flow(u, qc, T)) / CS
-        smp = None
-        if samples:
-            smp = np.array([self.flow(u, q, j * T / samples) for j in range(samples)])
-        return FlowTangent(phi=self.flow(u, q, T), jvp=jvp, dT=dT, dp=dp, samples=smp)
+        return complex_step_tangent(_flow, u, q, T, V, param_index, samples)
+
+
+def complex_step_tangent(flow, u, q, T, V=None, param_index=None,  # noqa: ANN001, ANN201
+                         samples=0):
+    """The ``flow_tangent`` hook of an exact ``flow(u, q, T)`` that accepts
+    complex arguments: every derivative by complex-step differentiation."""
+    u, q = np.asarray(u, float), np.asarray(q, float)
+    V = np.eye(u.size) if V is None else np.asarray(V, float).reshape(u.size, -1)
+    jvp = np.column_stack([np.imag(flow(u + 1j * CS * v, q, T)) / CS for v in V.T])
+    dT = np.imag(flow(u, q, T + 1j * CS)) / CS
+    dp = None
+    if param_index is not None:
+        qc = q.astype(complex)
+        qc[param_index] += 1j * CS
+        dp = np.imag(flow(u, qc, T)) / CS
+    smp = None
+    if samples:
+        smp = np.array([np.real(flow(u, q, j * T / samples)) for j in range(samples)])
+    return FlowTangent(phi=np.real(flow(u, q, float(T))), jvp=jvp, dT=dT, dp=dp, samples=smp)
 
 
 def _cycle(p: float) -> np.ndarray:

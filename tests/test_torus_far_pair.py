@@ -23,17 +23,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_torus_acceptance import complex_step_tangent
 
 from contfil.engine.branch import TORUS
 from contfil.engine.continuation.driver import Continuation, ContinuationSettings
 from contfil.engine.events.multipliers import _log_ordered, crossing_localiser
 from contfil.engine.problems.shooting import PeriodicOrbitProblem
-from contfil.protocol import FlowTangent, FunctionModel
+from contfil.protocol import FunctionModel
 
 K, NU, C, NU2 = 10.0, 0.3, -0.02, 0.17
-CS = 1e-30  # complex step
-
-
 def _rhs(u, q):  # noqa: ANN001, ANN202
     p = q[0]
     x, y, z, w, v, s = u
@@ -72,19 +70,7 @@ class FarPairModel(FunctionModel):
         return np.real(_flow(np.asarray(u, float), np.asarray(q, float), float(T)))
 
     def flow_tangent(self, u, q, T, V=None, param_index=None, samples=0):  # noqa: ANN001, ANN201
-        u, q = np.asarray(u, float), np.asarray(q, float)
-        V = np.eye(6) if V is None else np.asarray(V, float).reshape(6, -1)
-        jvp = np.column_stack([np.imag(_flow(u + 1j * CS * v, q, T)) / CS for v in V.T])
-        dT = np.imag(_flow(u, q, T + 1j * CS)) / CS
-        dp = None
-        if param_index is not None:
-            qc = q.astype(complex)
-            qc[param_index] += 1j * CS
-            dp = np.imag(_flow(u, qc, T)) / CS
-        smp = None
-        if samples:
-            smp = np.array([self.flow(u, q, j * T / samples) for j in range(samples)])
-        return FlowTangent(phi=self.flow(u, q, T), jvp=jvp, dT=dT, dp=dp, samples=smp)
+        return complex_step_tangent(_flow, u, q, T, V, param_index, samples)
 
 
 @pytest.mark.parametrize("direction", [1, -1])
