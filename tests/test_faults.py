@@ -461,3 +461,28 @@ def test_interrupt_swallowed_by_a_c_callback_prints_no_traceback(monkeypatch) ->
     call_back(interrupted)
     assert len(seen) == 2 and isinstance(seen[1], Interrupted)
     STOP.reset()
+
+
+def test_resume_keeps_the_classified_states_of_a_finished_run(finished, tmp_path: Path) -> None:
+    """States added to a finished run's graph by analysis scripts are not in its
+    task logs: a resume, which rebuilds the graph from the logs, keeps them,
+    joined to the same special point and branch (a resume used to drop them)."""
+    spec, run0 = finished
+    run = tmp_path / "run"
+    shutil.copytree(run0, run)
+    g = _graph(run)
+    hopf = next(s for s in g.special_ids() if g.special_point(s).kind == "hopf")
+    bid = g.branch_ids()[0]
+    param = g.branch(bid).param
+    a0 = g.add_state("quasiperiodic", param, 0.4, {"lyapunov": 0.1, "seed": 5},
+                     born_from=g.label(hopf))
+    a1 = g.add_state("chaotic", param, 0.5, {"lyapunov": 9.0}, born_from=bid, index=3)
+    (run / "graph.json").write_text(g.to_json_text())
+    assert main(["run", str(spec), "--out", str(run), "--resume", "--quiet"]) == 0
+    g2 = _graph(run)
+    assert g2.state_ids() == [a0, a1]
+    assert g2.state(a0)["evidence"] == {"lyapunov": 0.1, "seed": 5}
+    assert g2.state(a1)["p"] == 0.5 and g2.state(a1)["kind"] == "chaotic"
+    assert g2.states_from(g.label(hopf)) == [a0]
+    assert g2.g.edges[bid, a1]["index"] == 3
+    _same_graph(g, g2)  # branches and special points unchanged

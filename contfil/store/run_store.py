@@ -253,7 +253,37 @@ class RunStore:
         return self.root / "graph.json"
 
     def save_graph(self, graph: Any) -> Path:
+        """Write the run's graph, keeping the state nodes of the graph it replaces."""
+        self._carry_states(graph)
         return save_graph_json(graph, self.graph_path)
+
+    def _carry_states(self, graph: Any) -> None:
+        """Classified states (quasiperiodic, chaotic, edge nodes) are added to a
+        finished run's ``graph.json`` by analysis scripts; the task logs do not
+        hold them. A graph rebuilt from the logs (a resume) takes them over from
+        the file it replaces, joined to the same branch point or branch."""
+        if graph.state_ids() or not self.graph_path.exists():
+            return
+        from contfil.graph.branch_graph import BranchGraph
+
+        try:
+            old = BranchGraph.load_json(self.graph_path)
+        except Exception:  # noqa: BLE001 - a damaged graph is rebuilt from the logs
+            return
+        for aid in old.state_ids():
+            st = old.state(aid)
+            born, index = None, None
+            for src, _, d in old.g.in_edges(aid, data=True):
+                if d.get("role") != "state":
+                    continue
+                if src in old.branches and src in graph.branches:
+                    born, index = src, d.get("index")
+                elif src in old.special_points:
+                    label = old.label(src)
+                    if any(graph.label(s) == label for s in graph.special_ids()):
+                        born = label
+            graph.add_state(st["kind"], st["param"], st["p"], st["evidence"], born_from=born,
+                            index=index)
 
 
 def save_graph_json(graph: Any, path: str | Path) -> Path:
