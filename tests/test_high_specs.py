@@ -42,7 +42,8 @@ def test_high_spec_starts_from_stable_beating_at_the_top_of_the_stored_run(path:
 # --- tip SF beyond the first window (issue 12): the planar folds, beating
 # with Radau past b1 = 2272, QP3 to its end. Read-only over the stored runs.
 
-TIP_SF_MORE = ["tip_sf_planar", "tip_sf_high_planar", "tip_sf_high2", "tip_sf_high_qp3"]
+TIP_SF_MORE = ["tip_sf_planar", "tip_sf_high_planar", "tip_sf_high2", "tip_sf_high_qp3",
+               "tip_sf_high3"]
 
 
 @pytest.mark.parametrize("name", TIP_SF_MORE)
@@ -118,3 +119,25 @@ def test_3d_tip_sf_beating_has_the_planar_folds_and_the_pitchforks_of_both_state
     # BPC of the last session's run, at LPC2)
     assert not any(abs(sp.point.p - lpc2.point.p) < 1e-3 for sp in bpc)
     assert br3.points[-1].n_unstable == 0
+
+
+def test_3d_tip_sf_buckled_beating_loses_stability_by_tori_and_leads_to_quasiperiodic_states(
+) -> None:
+    """Stored ``tip_sf_high3`` (buckled-beating from b1 = 3000): stable at its
+    start, two tori (in the plane, then out of it) reported by the torus event
+    itself with their complex pairs on the unit circle, and the simulated
+    states beyond joined to the first torus."""
+    g = load_run_graph(ROOT / "branches" / "data" / "tip_sf_high3")
+    br = g.branch("B0")
+    assert br.points[0].n_unstable == 0
+    sps = [g.special_point(s) for s in g.special_points_on("B0")]
+    tori = [sp for sp in sps if sp.kind == "torus"]
+    assert [round(sp.point.p, 1) for sp in tori] == [3727.5, 3778.9]
+    assert not any(sp.kind == "stability_change" for sp in sps)
+    for sp in tori:
+        assert abs(abs(complex(sp.data["multiplier"])) - 1.0) < 1e-6
+        assert sp.data["multiplier"] != 1.0 and abs(sp.data["p_error"]) < 0.05
+    ns1 = g.special_id(g.label(g.special_points_on("B0")[sps.index(tori[0])]))
+    states = g.states_from(ns1)
+    assert [g.state(a)["kind"] for a in states] == ["quasiperiodic", "quasiperiodic"]
+    assert sorted(g.state(a)["p"] for a in states) == [4000.0, 5000.0]
