@@ -94,6 +94,7 @@ class RunStore:
     ) -> None:
         self.root = Path(root)
         self.fsync = fsync
+        self._states_checked = False  # see _carry_states
         self.manifest_path = self.root / "run.json"
         self.lock: RunLock | None = None
         # A resume of a run killed before its directory was renamed into
@@ -262,7 +263,12 @@ class RunStore:
         finished run's ``graph.json`` by analysis scripts; the task logs do not
         hold them. A graph rebuilt from the logs (a resume) takes them over from
         the file it replaces, joined to the same branch point or branch."""
-        if graph.state_ids() or not self.graph_path.exists():
+        # The file is read once per store: after the first save it holds
+        # either the carried states or none to carry.
+        if self._states_checked or graph.state_ids():
+            return
+        self._states_checked = True
+        if not self.graph_path.exists():
             return
         from contfil.graph.branch_graph import BranchGraph
 
@@ -276,9 +282,9 @@ class RunStore:
             for src, _, d in old.g.in_edges(aid, data=True):
                 if d.get("role") != "state":
                     continue
-                if src in old.branches and src in graph.branches:
+                if src in old.branch_ids() and src in graph.branch_ids():
                     born, index = src, d.get("index")
-                elif src in old.special_points:
+                elif src in old.special_ids():
                     label = old.label(src)
                     if any(graph.label(s) == label for s in graph.special_ids()):
                         born = label

@@ -17,6 +17,9 @@ import numpy as np
 
 from contfil.errors import DomainError
 
+from ..kernels.geometry import state_from_frames
+from ..physics import project_planar
+
 #: Steps per period: the paper's ``dt = T/400`` (Methods, "Time-Stepping").
 STEPS_PER_PERIOD = 400
 #: Largest step on long horizons (``T > STEPS_PER_PERIOD * DT_MAX = 0.2``),
@@ -51,3 +54,38 @@ def step_count(T: float, steps: int | None, dt: float | None,
 
 
 __all__ = ["DT_MAX", "STEPS_PER_PERIOD", "default_steps", "step_count"]
+
+
+def state_of_frames(q: np.ndarray, planar: bool) -> np.ndarray:
+    """The model state of frames ``q``: planar ``phi`` or 3D ``U``."""
+    U = state_from_frames(q)
+    return project_planar(U) if planar else U
+
+
+class LastTrajectory:
+    """The last planar base trajectory a tangent sweep recorded, for the
+    out-of-plane block of the same orbit to replay instead of flowing it
+    again (decisions 33). One entry, replaced whole by one assignment, so a
+    reader in another thread sees either the old record or the new one."""
+
+    def __init__(self) -> None:
+        self._rec: tuple[tuple, dict[str, np.ndarray]] | None = None
+        #: Counts of recorded and replayed trajectories (benchmarks check them).
+        self.stats = {"recorded": 0, "replayed": 0}
+
+    def get(self, key: tuple) -> dict[str, np.ndarray] | None:
+        """The recorded arrays if ``key`` is the record's (counted as a replay)."""
+        rec = self._rec
+        if rec is None or rec[0] != key:
+            return None
+        self.stats["replayed"] += 1
+        return rec[1]
+
+    def put(self, key: tuple, **arrays: np.ndarray) -> None:
+        """Record ``arrays`` under ``key``, replacing the previous record."""
+        self._rec = (key, arrays)
+        self.stats["recorded"] += 1
+
+    def clear(self) -> None:
+        self._rec = None
+

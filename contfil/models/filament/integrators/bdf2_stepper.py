@@ -21,9 +21,10 @@ from contfil.errors import ConvergenceError, NonFiniteError
 
 from ..kernels import bdf2_step as _k
 from ..kernels import broyden as _br
-from ..kernels.geometry import frames_from_state, positions, state_from_frames, tangents
-from ..physics import FilamentPhysics, embed_planar, project_planar
+from ..kernels.geometry import frames_from_state, positions, tangents
+from ..physics import FilamentPhysics, embed_planar
 from ..scene import Scene
+from . import state_of_frames
 
 Array = NDArray[np.float64]
 
@@ -253,8 +254,7 @@ class BDF2Stepper:
     @property
     def state(self) -> Array:
         """Current model state (planar ``phi`` or 3D ``U``)."""
-        U = state_from_frames(self._q)
-        return project_planar(U) if self.phys.planar else U
+        return state_of_frames(self._q, self.phys.planar)
 
     @property
     def frames(self) -> Array:

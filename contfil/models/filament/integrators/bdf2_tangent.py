@@ -42,7 +42,7 @@ from ..kernels.effects import P_B1, P_F, P_SCALE
 from ..kernels.geometry import state_from_frames, tangents
 from ..kernels.quaternion import dexp_matrix
 from ..physics import embed_planar, project_planar
-from . import default_steps
+from . import LastTrajectory, default_steps, state_of_frames
 from .bdf2_stepper import BDF2Stepper
 
 Array = NDArray[np.float64]
@@ -86,12 +86,10 @@ def _is_normal_block(phys: Any, U: Array, V: Array) -> bool:
             and not np.any(V[1::3]))
 
 
-#: The last planar base trajectory a sweep recorded (one entry: its key, the
-#: frames ``q``, positions ``x`` and physical unknowns ``z`` of every step):
-#: the out-of-plane block of the same orbit replays it (:func:`flow_tangent`).
-_TRAJECTORY: dict[str, Any] = {}
-#: Counts of recorded and replayed base trajectories (benchmarks check them).
-TRAJECTORY_STATS = {"recorded": 0, "replayed": 0}
+#: The last planar base trajectory (frames ``q``, positions ``x``, physical
+#: unknowns ``z`` of every step) of a sweep: :func:`flow_tangent` replays it.
+_TRAJECTORY = LastTrajectory()
+TRAJECTORY_STATS = _TRAJECTORY.stats
 
 
 def _trajectory_key(st: BDF2Stepper, n: int) -> tuple:
@@ -102,12 +100,6 @@ def _trajectory_key(st: BDF2Stepper, n: int) -> tuple:
             st._zmap.tobytes(), st._rmap.tobytes(), st.dt, st.tol, st._q.tobytes(),
             st._x.tobytes(), st._xm1.tobytes(), st._zp.tobytes(), st._zpm1.tobytes(),
             float(st._info[3]), int(n))
-
-
-def _stepper_state(st: BDF2Stepper, q: Array) -> Array:
-    """The model state (planar ``phi`` or 3D ``U``) of frames ``q`` (as ``st.state``)."""
-    U = state_from_frames(q)
-    return project_planar(U) if st.phys.planar else U
 
 
 def _python_sweep(st: BDF2Stepper, n: int, ph: Any, tz: Array, tr: Array, par: Array,
@@ -245,17 +237,16 @@ def flow_tangent(
     dpar = ph.params(_strength(st.par) + 1.0) - par
     every = n // samples if samples else 0
     key = _trajectory_key(st, n)
-    rec = dict(_TRAJECTORY)  # one snapshot: another thread may replace the record
-    cached = rec.get("key") == key
-    if cached:
+    rec = _TRAJECTORY.get(key)
+    if rec is not None:
         # the same base flow was swept just before (the planar shooting sweep
         # of this orbit): only the tangent steps, along the recorded trajectory
         tq, tx, tzs = rec["q"], rec["x"], rec["z"]
         _kt.replay(st.dt, st.par, tq, tx, tzs, par, dpar, ph.flags, tz, tr, dth, dx, dxm1,
                    du, ddt, ds, mode)
-        TRAJECTORY_STATS["replayed"] += 1
         q_end = tq[n]
-        samp = [_stepper_state(st, tq[k]) for k in range(0, n, every)] if every else []
+        samp = [state_of_frames(tq[k], st.phys.planar) for k in range(0, n, every)] if every \
+            else []
     else:
         nrow = n + 1 if st.phys.planar else 0  # planar base flows are kept for a replay
         tq = np.empty((nrow, N, 4))
@@ -275,11 +266,9 @@ def flow_tangent(
             raise ConvergenceError(  # pragma: no cover - the step above raises
                 f"flow_tangent: step {done} failed in the compiled sweep only")
         q_end = st._q
-        samp = [_stepper_state(st, qs) for qs in samp_q]
+        samp = [state_of_frames(qs, st.phys.planar) for qs in samp_q]
         if nrow:
-            _TRAJECTORY.clear()
-            _TRAJECTORY.update(key=key, q=tq, x=tx, z=tzs)
-            TRAJECTORY_STATS["recorded"] += 1
+            _TRAJECTORY.put(key, q=tq, x=tx, z=tzs)
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular step Jacobian)")
     U1 = state_from_frames(q_end)

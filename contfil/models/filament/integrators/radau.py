@@ -61,7 +61,7 @@ from ..kernels import radau_solve as _ks
 from ..kernels import radau_step as _kr
 from ..kernels.geometry import frames_from_state, positions, state_from_frames, tangents
 from ..physics import FilamentPhysics, embed_planar, project_planar
-from . import STEPS_PER_PERIOD, default_steps, step_count
+from . import STEPS_PER_PERIOD, LastTrajectory, default_steps, state_of_frames, step_count
 from .bdf2_stepper import _maps, _scene_of, _strength_from_params
 from .bdf2_tangent import _rotations_from_state, _state_from_rotations, _strength, normal_maps
 
@@ -221,8 +221,7 @@ class RadauStepper:
     @property
     def state(self) -> Array:
         """Current model state (planar ``phi`` or 3D ``U``)."""
-        U = state_from_frames(self._q)
-        return project_planar(U) if self.phys.planar else U
+        return state_of_frames(self._q, self.phys.planar)
 
     @property
     def frames(self) -> Array:
@@ -472,12 +471,10 @@ def flow(model: Any, u: Array, p: Array | None, T: float, steps: int | None = No
     return st.step(n)
 
 
-#: The last planar base trajectory a Radau sweep recorded (one entry: its
-#: key, the frames ``q`` at every step and the physical stage unknowns ``Z``
-#: of every step): the out-of-plane block of the same orbit replays it.
-_TRAJECTORY: dict[str, Any] = {}
-#: Counts of recorded and replayed base trajectories (benchmarks check them).
-TRAJECTORY_STATS = {"recorded": 0, "replayed": 0}
+#: The last planar base trajectory (frames ``q`` and physical stage unknowns
+#: ``Z`` of every step) of a Radau sweep: :func:`flow_tangent` replays it.
+_TRAJECTORY = LastTrajectory()
+TRAJECTORY_STATS = _TRAJECTORY.stats
 
 
 def _trajectory_key(st: RadauStepper, n: int) -> tuple:
@@ -485,12 +482,6 @@ def _trajectory_key(st: RadauStepper, n: int) -> tuple:
     method, solver options, ``dt``, the start frames and the steps."""
     return (st.par.tobytes(), st.phys.flags.tobytes(), st._zmap.tobytes(), st.W.tobytes(),
             st.dt, st.tol, st.max_iter, st.rate, st.reuse, st.newton, st._q.tobytes(), int(n))
-
-
-def _state_of(st: RadauStepper, q: Array) -> Array:
-    """The model state of frames ``q`` (as ``st.state``)."""
-    U = state_from_frames(q)
-    return project_planar(U) if st.phys.planar else U
 
 
 def flow_tangent(
@@ -559,13 +550,11 @@ def flow_tangent(
     samp: list[Array] = []
     every = n // samples if samples else 0
     key = _trajectory_key(st, n)
-    rec = dict(_TRAJECTORY)  # one snapshot: another thread may replace the record
-    cached = rec.get("key") == key
+    rec = _TRAJECTORY.get(key)
+    cached = rec is not None
     record = st.phys.planar and not cached  # planar base flows are kept for a replay
     tq = rec["q"] if cached else np.empty((n + 1 if record else 0, N, 4))
     tZ = rec["Z"] if cached else np.empty((n if record else 0, st.s, 6 * N))
-    if cached:
-        TRAJECTORY_STATS["replayed"] += 1
     for k in range(n):
         if cached:
             # the same base flow was swept just before (the planar shooting
@@ -586,14 +575,13 @@ def flow_tangent(
             raise NonFiniteError(f"flow_tangent: {exc} at step {k}") from exc
     if cached:
         q_end = tq[n]
-        samp = [_state_of(st, tq[k]) for k in range(0, n, every)] if every else []
+        samp = [state_of_frames(tq[k], st.phys.planar) for k in range(0, n, every)] if every \
+            else []
     else:
         q_end = st._q
         if record:
             tq[n] = st._q
-            _TRAJECTORY.clear()
-            _TRAJECTORY.update(key=key, q=tq, Z=tZ)
-            TRAJECTORY_STATS["recorded"] += 1
+            _TRAJECTORY.put(key, q=tq, Z=tZ)
     if not np.all(np.isfinite(dth)):
         raise NonFiniteError("flow_tangent: non-finite tangent (singular stage Jacobian)")
     U1 = state_from_frames(q_end)
