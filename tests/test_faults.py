@@ -477,12 +477,24 @@ def test_resume_keeps_the_classified_states_of_a_finished_run(finished, tmp_path
     a0 = g.add_state("quasiperiodic", param, 0.4, {"lyapunov": 0.1, "seed": 5},
                      born_from=g.label(hopf))
     a1 = g.add_state("chaotic", param, 0.5, {"lyapunov": 9.0}, born_from=bid, index=3)
+    # the branch rebuilt last is not in the graph at the resume's first save:
+    # its state must still come back joined
+    last = g.branch_ids()[-1]
+    assert last != bid
+    a2 = g.add_state("quasiperiodic", param, 0.6, {"lyapunov": 0.0}, born_from=last, index=1)
     (run / "graph.json").write_text(g.to_json_text())
     assert main(["run", str(spec), "--out", str(run), "--resume", "--quiet"]) == 0
     g2 = _graph(run)
-    assert g2.state_ids() == [a0, a1]
+    assert g2.state_ids() == [a0, a1, a2]
+    assert [g2.state(a)["label"] for a in (a0, a1, a2)] == [g.state(a)["label"]
+                                                           for a in (a0, a1, a2)]
     assert g2.state(a0)["evidence"] == {"lyapunov": 0.1, "seed": 5}
     assert g2.state(a1)["p"] == 0.5 and g2.state(a1)["kind"] == "chaotic"
     assert g2.states_from(g.label(hopf)) == [a0]
     assert g2.g.edges[bid, a1]["index"] == 3
+    assert g2.g.edges[last, a2]["index"] == 1
     _same_graph(g, g2)  # branches and special points unchanged
+    # a second resume keeps them once, joined the same way
+    assert main(["run", str(spec), "--out", str(run), "--resume", "--quiet"]) == 0
+    g3 = _graph(run)
+    assert g3.state_ids() == [a0, a1, a2] and g3.g.edges[last, a2]["index"] == 1

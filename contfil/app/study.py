@@ -316,7 +316,8 @@ def _run(spec: Spec, info: ModelInfo, seed: Seed, settings: ContinuationSettings
     display.message(
         f"{'resuming' if resume else 'run'} {spec.name}: writing to {run_dir} "
         f"(`contfil show {run_dir}` reports progress)")
-    graph = explorer.run()
+    # the run's graph with the classified states of the one a resume replaced
+    graph = store.with_carried_states(explorer.run())
     files = [store.save_graph(graph)]
     if spec.output["graphml"]:
         files.append(save_graph_graphml(graph, run_dir / "graph.graphml"))

@@ -94,7 +94,9 @@ class RunStore:
     ) -> None:
         self.root = Path(root)
         self.fsync = fsync
-        self._states_checked = False  # see _carry_states
+        #: states of the graph file a resume replaces (see with_carried_states);
+        #: read at the first save, ``None`` before
+        self._carried: list[dict[str, Any]] | None = None
         self.manifest_path = self.root / "run.json"
         self.lock: RunLock | None = None
         # A resume of a run killed before its directory was renamed into
@@ -255,41 +257,63 @@ class RunStore:
 
     def save_graph(self, graph: Any) -> Path:
         """Write the run's graph, keeping the state nodes of the graph it replaces."""
-        self._carry_states(graph)
-        return save_graph_json(graph, self.graph_path)
+        return save_graph_json(self.with_carried_states(graph), self.graph_path)
 
-    def _carry_states(self, graph: Any) -> None:
-        """Classified states (quasiperiodic, chaotic, edge nodes) are added to a
+    def with_carried_states(self, graph: Any) -> Any:
+        """``graph``, or a copy of it with the classified states of the graph
+        file it replaces.
+
+        Classified states (quasiperiodic, chaotic, edge nodes) are added to a
         finished run's ``graph.json`` by analysis scripts; the task logs do not
-        hold them. A graph rebuilt from the logs (a resume) takes them over from
-        the file it replaces, joined to the same branch point or branch."""
-        # The file is read once per store: after the first save it holds
-        # either the carried states or none to carry.
-        if self._states_checked or graph.state_ids():
-            return
-        self._states_checked = True
+        hold them. A resume rebuilds the graph from the logs branch by branch,
+        so each save re-adds them, each joined to its branch or special point
+        (matched by label) once the rebuilt graph has it: a state born from a
+        branch rebuilt after the first save is joined at a later save. The
+        explorer's own graph is never modified.
+        """
+        if self._carried is None:
+            self._carried = self._read_states()
+        # states the graph holds itself are not carried twice
+        have = {(d["kind"], d["label"], d["p"]) for d in graph.states.values()}
+        todo = [c for c in self._carried if (c["kind"], c["label"], c["p"]) not in have]
+        if not todo:
+            return graph
+        out = type(graph).from_networkx(graph.to_networkx(), graph.symmetries, graph.tol)
+        labels = {out.label(s) for s in out.special_ids()}
+        for c in todo:
+            born, index = None, None
+            if c["branch"] is not None and c["branch"] in out.branch_ids():
+                born, index = c["branch"], c["index"]
+            elif c["special"] is not None and c["special"] in labels:
+                born = c["special"]
+            out.add_state(c["kind"], c["param"], c["p"], c["evidence"], born_from=born,
+                          index=index)
+        return out
+
+    def _read_states(self) -> list[dict[str, Any]]:
+        """The states of the graph file on disk, with what each was born from."""
         if not self.graph_path.exists():
-            return
+            return []
         from contfil.graph.branch_graph import BranchGraph
 
         try:
             old = BranchGraph.load_json(self.graph_path)
         except Exception:  # noqa: BLE001 - a damaged graph is rebuilt from the logs
-            return
+            return []
+        found = []
         for aid in old.state_ids():
             st = old.state(aid)
-            born, index = None, None
+            rec = {k: st[k] for k in ("kind", "label", "param", "p", "evidence")}
+            rec.update(branch=None, index=None, special=None)
             for src, _, d in old.g.in_edges(aid, data=True):
                 if d.get("role") != "state":
                     continue
-                if src in old.branch_ids() and src in graph.branch_ids():
-                    born, index = src, d.get("index")
+                if src in old.branch_ids():
+                    rec.update(branch=src, index=d.get("index"))
                 elif src in old.special_ids():
-                    label = old.label(src)
-                    if any(graph.label(s) == label for s in graph.special_ids()):
-                        born = label
-            graph.add_state(st["kind"], st["param"], st["p"], st["evidence"], born_from=born,
-                            index=index)
+                    rec["special"] = old.label(src)
+            found.append(rec)
+        return found
 
 
 def save_graph_json(graph: Any, path: str | Path) -> Path:
