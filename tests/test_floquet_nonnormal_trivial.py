@@ -61,6 +61,25 @@ def test_a_jordan_pair_at_one_keeps_the_deflation() -> None:
     assert abs(w[triv][0] - 1.0) < 1e-12 and np.array_equal(triv.sum(), rtriv.sum())
 
 
+@pytest.mark.parametrize("delta", [1e-6, 1e-2])
+def test_a_pair_split_at_one_keeps_the_deflation(delta: float) -> None:
+    """A double multiplier 1 split by an error into ``1 ± i√δ``: its two
+    eigenvectors lie at equal angles on either side of an inexact trivial
+    direction, none is singled out, and the deflation stays (its value is
+    off by the direction error, as before)."""
+    k = 5
+    rng = np.random.default_rng(2)
+    V = np.linalg.qr(rng.standard_normal((k, k)))[0]
+    J = np.diag([1.0, 1.0, 0.4, 0.2, -0.3])
+    J[0, 1], J[1, 0] = 1.0, -delta
+    M = V @ J @ V.T
+    Q = (V[:, :1] + 1e-3 * V[:, 2:3]) / np.hypot(1.0, 1e-3)
+    w, _, triv, _ = _deflated_block(M, Q)
+    ref, _, rtriv, _ = _deflation(M, Q)
+    assert np.array_equal(np.sort_complex(w), np.sort_complex(ref))
+    assert np.array_equal(triv.sum(), rtriv.sum())
+
+
 def test_an_exact_span_is_unchanged() -> None:
     """With an invariant trivial span the result is the deflation's to rounding."""
     values = [1.0, 30.0, 0.5, 0.25]

@@ -380,8 +380,9 @@ def _block_trivial_spans(
 
 #: the eigenvectors taken as trivial are at least this many times closer in
 #: angle to the span than any other (else: a Jordan pair of a genuine
-#: multiplier with a trivial one, both near the span, left to the deflation)
-TRIVIAL_ANGLE_RATIO = 10.0
+#: multiplier with a trivial one, split by the error into two eigenvectors
+#: at equal angles on either side of the span, left to the deflation)
+TRIVIAL_ANGLE_RATIO = 4.0
 #: a deflated trivial value this close to 1 is kept
 DEFLATION_OFF = 1e-6
 
