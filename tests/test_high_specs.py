@@ -43,7 +43,7 @@ def test_high_spec_starts_from_stable_beating_at_the_top_of_the_stored_run(path:
 # with Radau past b1 = 2272, QP3 to its end. Read-only over the stored runs.
 
 TIP_SF_MORE = ["tip_sf_planar", "tip_sf_high_planar", "tip_sf_high2", "tip_sf_high_qp3",
-               "tip_sf_high3"]
+               "tip_sf_high3", "tip_sf_high_qp3_radau"]
 
 
 @pytest.mark.parametrize("name", TIP_SF_MORE)
@@ -141,3 +141,25 @@ def test_3d_tip_sf_buckled_beating_loses_stability_by_tori_and_leads_to_quasiper
     states = g.states_from(ns1)
     assert [g.state(a)["kind"] for a in states] == ["quasiperiodic", "quasiperiodic"]
     assert sorted(g.state(a)["p"] for a in states) == [4000.0, 5000.0]
+
+
+def test_3d_tip_sf_qp3_in_radau_has_its_own_pitchfork_where_bpc6s_family_ends() -> None:
+    """Stored ``tip_sf_high_qp3_radau``: QP3 born at beating's second
+    out-of-plane pitchfork (2145.77) drifts, and has a pitchfork of its own
+    near b1 = 2179.91, where its unstable multiplier returns inside: the point
+    where the drifting branch from BPC6's family ends (session 10, located
+    there at 2179.9083 +- 4e-4 from the other side; docs/high-actuation.md)."""
+    g = load_run_graph(ROOT / "branches" / "data" / "tip_sf_high_qp3_radau")
+    bpc1 = g.special_point("BPC1")
+    assert bpc1.data["event"] == "subspace_breaking"
+    assert abs(bpc1.point.p - 2145.7657) < 1e-3 and abs(bpc1.data["p_error"]) < 1e-3
+    qp3 = g.branch("B1")
+    assert qp3.kind == "relative_periodic_orbit"
+    assert all(abs(pt.extra["drift"]) > 0.04 for pt in qp3.points)
+    bpc2 = g.special_point("BPC2")
+    assert g.special_id("BPC2") in g.special_points_on("B1")
+    assert abs(bpc2.point.p - 2179.9083) < 1e-3 and abs(bpc2.data["p_error"]) < 1e-3
+    assert abs(complex(bpc2.data["multiplier"]) - 1.0) < 1e-5
+    below = [pt.n_unstable for pt in qp3.points if pt.p < bpc2.point.p]
+    above = [pt.n_unstable for pt in qp3.points if pt.p > bpc2.point.p]
+    assert set(below) == {1} and set(above) == {0}
