@@ -6,7 +6,10 @@ starts a 3-D simulation there, from a stored orbit perturbed out of its
 plane, integrates it with the model's BDF2 stepper (``dt = T/400`` of the
 starting orbit), discards a transient, and classifies the attractor with
 :func:`contfil.models.filament.longrun.classify_run` (Poincaré section,
-spectrum, largest Lyapunov exponent by two-trajectory finite differences).
+spectrum, largest Lyapunov exponent along the classified trajectory: a
+companion run stepped in lockstep and renormalised every period, decisions
+39; ``--lyapunov`` maps of one period each, the last ones of the classified
+window, all of it when ``--lyapunov >= --periods``).
 With ``--store`` the result is added to the stored graph as a state node
 joined to the bifurcation named by ``--born-from`` (a special-point label).
 
@@ -62,7 +65,8 @@ def main() -> None:
     ap.add_argument("--periods", type=int, default=200, help="classified periods")
     ap.add_argument("--transient", type=int, default=100, help="discarded periods")
     ap.add_argument("--lyapunov", type=int, default=200,
-                    help="Lyapunov maps of one period each (0: none)")
+                    help="Lyapunov maps of one period each, the last of the classified "
+                         "window (0: none; >= --periods: the whole window)")
     ap.add_argument("--born-from", default=None, help="special-point label for the graph")
     ap.add_argument("--store", action="store_true", help="add the state to the stored graph")
     ap.add_argument("--spec", type=Path, default=None,
