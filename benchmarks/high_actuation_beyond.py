@@ -6,7 +6,10 @@ starts a 3-D simulation there, from a stored orbit perturbed out of its
 plane, integrates it with the model's BDF2 stepper (``dt = T/400`` of the
 starting orbit), discards a transient, and classifies the attractor with
 :func:`contfil.models.filament.longrun.classify_run` (Poincaré section,
-spectrum, largest Lyapunov exponent by two-trajectory finite differences).
+spectrum, largest Lyapunov exponent along the classified trajectory: a
+companion run stepped in lockstep and renormalised every period, decisions
+39; ``--lyapunov`` maps of one period each, the last ones of the classified
+window, all of it when ``--lyapunov >= --periods``).
 With ``--store`` the result is added to the stored graph as a state node
 joined to the bifurcation named by ``--born-from`` (a special-point label).
 
@@ -27,8 +30,11 @@ beating -> inter-beating -> buckled-beating in ``tip_sf_high2``, that may
 be the wrong state); ``--planar`` simulates the planar (x-z) reduced model
 instead, started from the stored (3-D, planar) orbit projected onto the
 plane and pushed within it (planar chaos cannot leave the plane);
-``--save`` writes the record's spectrum, section points and Lyapunov
-history to an ``.npz`` (plotted by ``benchmarks/chaos_spectra.py``).
+``--straight A`` starts instead from the straight filament pushed by ``A``
+(seeded direction; in the plane with ``--planar``), the branch point still
+setting the step and the period unit; ``--save`` writes the record's
+spectrum, section points and Lyapunov history to an ``.npz`` (plotted by
+``benchmarks/chaos_spectra.py``).
 
 Prints the label, its evidence and one JSON line.
 """
@@ -62,7 +68,8 @@ def main() -> None:
     ap.add_argument("--periods", type=int, default=200, help="classified periods")
     ap.add_argument("--transient", type=int, default=100, help="discarded periods")
     ap.add_argument("--lyapunov", type=int, default=200,
-                    help="Lyapunov maps of one period each (0: none)")
+                    help="Lyapunov maps of one period each, the last of the classified "
+                         "window (0: none; >= --periods: the whole window)")
     ap.add_argument("--born-from", default=None, help="special-point label for the graph")
     ap.add_argument("--store", action="store_true", help="add the state to the stored graph")
     ap.add_argument("--spec", type=Path, default=None,
@@ -76,6 +83,8 @@ def main() -> None:
                          "a branch through folds passes a parameter several times)")
     ap.add_argument("--planar", action="store_true",
                     help="simulate the planar reduced model (push within the plane)")
+    ap.add_argument("--straight", type=float, default=None,
+                    help="start from the straight filament pushed by this amplitude")
     ap.add_argument("--save", type=Path, default=None,
                     help="write spectrum, section points and Lyapunov history here (.npz)")
     ap.add_argument("--from-log", type=Path, default=None,
@@ -103,7 +112,13 @@ def main() -> None:
     params[ip] = args.p
     subs = list(model.symmetries.invariant_subspaces.values())
     rng = np.random.default_rng(args.seed)
-    if args.planar or not subs:
+    if args.straight is not None:
+        # the straight filament (the zero state), pushed within the plane or in 3-D
+        if args.planar and subs:
+            model = subs[0].reduced_model()
+        w = rng.standard_normal(model.dim)
+        u0 = args.straight * w / np.linalg.norm(w)
+    elif args.planar or not subs:
         # the planar reduced model from the stored orbit's projection, pushed within the plane
         u = np.asarray(pt.u, dtype=float)
         if subs:
@@ -128,7 +143,8 @@ def main() -> None:
     ev = node["evidence"]
     ev.update({"start_branch": args.branch, "start_index": k, "start_p": float(pt.p),
                "wall_s": wall, "period_of_start_orbit": T, "seed": args.seed,
-               "steps_per_period": steps, "run": str(run), "planar": bool(args.planar)})
+               "steps_per_period": steps, "run": str(run), "planar": bool(args.planar),
+               "straight": args.straight})
     name = args.model + ("_planar" if args.planar else "")
     out = {"model": name, "p": args.p, "label": res.label, "wall_s": round(wall, 1),
            "evidence": ev}

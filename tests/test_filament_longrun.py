@@ -11,7 +11,7 @@ import pytest
 
 from contfil.analysis.bisection import Trajectory
 from contfil.errors import SpecError
-from contfil.models.filament import FilamentModel
+from contfil.models.filament import FilamentModel, longrun
 from contfil.models.filament.edge import whirl_beat_measures, whirl_beat_verdict
 from contfil.models.filament.integrators.bdf2 import flow, rotate_state_z, trajectory
 from contfil.models.filament.longrun import (
@@ -99,12 +99,34 @@ def test_streaming_memory_does_not_grow_with_the_run(tip_sf) -> None:
     assert held[1] < 50_000, held
 
 
-def test_whirling_is_classified_as_a_rotating_wave(tip_sf, whirling) -> None:
+@pytest.fixture(scope="module")
+def whirl_classified(tip_sf, whirling):
+    """classify_run on the whirling state without and with the exponent; the
+    reference states the exponent's lockstep saw at its renormalisations."""
     U, b1, omega = whirling
-    T = 2 * np.pi / abs(omega)
-    dt = T / 400
-    res, node = classify_run(tip_sf, U, np.array([b1]), dt, 64, sample_every=25,
-                             transient_steps=400)
+    dt = 2 * np.pi / abs(omega) / 400
+    kw = dict(sample_every=25, transient_steps=400)
+    plain = classify_run(tip_sf, U, np.array([b1]), dt, 64, **kw)
+    seen: list[np.ndarray] = []
+
+    class Spy(longrun.LockstepLyapunov):
+        def _renormalise(self) -> None:
+            seen.append(self.reference.history()[: tip_sf.dim].copy())
+            super()._renormalise()
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(longrun, "LockstepLyapunov", Spy)
+    try:
+        lyap = classify_run(tip_sf, U, np.array([b1]), dt, 64, lyapunov_samples=100,
+                            lyapunov_map_steps=25, **kw)
+    finally:
+        mp.undo()
+    return plain, lyap, np.array(seen)
+
+
+def test_whirling_is_classified_as_a_rotating_wave(tip_sf, whirling, whirl_classified) -> None:
+    U, b1, omega = whirling
+    res, node = whirl_classified[0]
     assert res.label == "rotating_wave"
     assert node["kind"] == "rotating_wave" and node["param"] == "b1" and node["p"] == b1
     # the invariant U1^2 + U2^2 is constant to the BDF2 error, the state is not
@@ -114,22 +136,65 @@ def test_whirling_is_classified_as_a_rotating_wave(tip_sf, whirling) -> None:
     np.testing.assert_allclose(inv, rotation_invariant(tip_sf, U), rtol=1e-3)
 
 
-def test_whirling_largest_lyapunov_exponent_is_zero(tip_sf, whirling) -> None:
+def test_whirling_largest_lyapunov_exponent_is_zero(whirling, whirl_classified) -> None:
     # The Lyapunov path of classify_run on a known answer: a stable rotating
     # wave's largest exponent is 0 (the neutral rotation; every other
     # direction decays). The finite-time estimate from a random direction is
     # biased low by the decay of its other components, ~ log|v0 . e|/t, so it
     # must be within 2 standard errors of 0, and those small against the
     # wave's own rate |omega| (111 here).
-    U, b1, omega = whirling
-    dt = 2 * np.pi / abs(omega) / 400
-    res, node = classify_run(tip_sf, U, np.array([b1]), dt, 64, sample_every=25,
-                             transient_steps=400, lyapunov_samples=100,
-                             lyapunov_map_steps=25)
+    omega = whirling[2]
+    res, node = whirl_classified[1]
     ev = node["evidence"]
     assert res.label == "rotating_wave"
     assert abs(ev["lyapunov"]) <= 2 * ev["lyapunov_error"]
     assert ev["lyapunov_error"] < 0.1 * abs(omega)
+
+
+def test_the_exponent_is_measured_along_the_classified_trajectory(whirl_classified) -> None:
+    # lyapunov_samples = 100 maps of one sample interval each, but the
+    # classified window holds 64: the exponent covers exactly those 64 maps
+    (res0, node0), (res1, node1), seen = whirl_classified
+    ev = node1["evidence"]
+    assert ev["lyapunov_method"] == "lockstep"
+    assert ev["lyapunov_maps"] == 64 and ev["lyapunov_skip_maps"] == 0
+    assert res1.lyapunov.n_steps == 64 and res1.lyapunov.dt == pytest.approx(25 * ev["dt"])
+    # the reference states at the 64 renormalisations are the classified
+    # trajectory: the classification with the companion stepped alongside is
+    # bit for bit the one without it, and the last reference state is the
+    # last classified sample
+    assert len(seen) == 64
+    np.testing.assert_array_equal(seen[-1], res1.final_state)
+    np.testing.assert_array_equal(res1.final_state, res0.final_state)
+    np.testing.assert_array_equal(res1.state_mean, res0.state_mean)
+    np.testing.assert_array_equal(res1.state_std, res0.state_std)
+    np.testing.assert_array_equal(res1.section.reservoir, res0.section.reservoir)
+    np.testing.assert_array_equal(res1.spectrum.psd, res0.spectrum.psd)
+    assert node1["evidence"]["t_end"] == node0["evidence"]["t_end"]
+
+
+def test_lockstep_companion_at_the_reference_follows_it(tip_sf) -> None:
+    # The BDF2 map acts on (u_k, u_{k-1}): a companion placed at the
+    # reference's pair takes the reference's next steps to round-off, while
+    # a restart from u_k alone (backward Euler first) is off by the method's
+    # local error, ~ 1e3 times the companion's distance 1e-7 |u|
+    planar = tip_sf.symmetries.invariant_subspaces["planar_xz"].reduced_model()
+    phi0 = 0.05 * np.sin(np.linspace(0.0, 3.0, planar.dim))
+    p, dt = np.array([300.0]), 1e-4
+    run = LongRun(planar, phi0, p, dt)
+    run.advance(4)
+    up = run.state
+    run.advance(1)
+    ref = longrun.BDF2Lockstep(run, up)
+    comp = longrun.BDF2Lockstep(LongRun(planar, run.state, p, dt))
+    comp.follow(ref, ref.history())
+    restart = LongRun(planar, run.state, p, dt)
+    ref.advance(3)
+    comp.advance(3)
+    restart.advance(3)
+    scale = np.linalg.norm(run.state)
+    assert np.max(np.abs(comp.history() - ref.history())) < 1e-13 * scale
+    assert np.max(np.abs(restart.state - run.state)) > 1e3 * 1e-7 * scale
 
 
 def test_rotating_the_state_rotates_the_tip(tip_sf, whirling) -> None:

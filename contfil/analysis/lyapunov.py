@@ -18,19 +18,34 @@ direction.
 
 Memory is O(dim): only the current state, the tangent vector, a running sum,
 per-block sums for the error estimate and a decimated history of bounded size.
+
+:class:`LockstepLyapunov` measures the exponent along a trajectory that its
+owner steps (a stateful integrator whose trajectory is also classified, say):
+a companion system is stepped in lockstep with the reference and put back at
+distance ``d`` from it after every map (Benettin), so the exponent covers
+exactly the steps the owner took, not a separate copy of the trajectory.
+The map's state may be larger than the sampled state (a multistep method's
+history): the systems expose it through :class:`LockstepSystem`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from contfil.errors import ContfilError, NonFiniteError, SpecError
 
-__all__ = ["LyapunovResult", "DecimatedHistory", "largest_lyapunov"]
+__all__ = [
+    "LyapunovResult",
+    "DecimatedHistory",
+    "LockstepSystem",
+    "LockstepLyapunov",
+    "largest_lyapunov",
+]
 
 StepMap = Callable[[NDArray[np.float64]], NDArray[np.float64]]
 TangentMap = Callable[
@@ -95,7 +110,9 @@ class LyapunovResult:
     n_steps, transient, dt:
         Averaged steps, discarded steps, time per step.
     method:
-        ``"tangent"`` or ``"finite_difference"``.
+        ``"tangent"``, ``"finite_difference"`` or ``"lockstep"``
+        (:class:`LockstepLyapunov`; then a step is one map and ``transient``
+        the alignment maps).
     fd_distance:
         Renormalisation distance of the two-trajectory method (NaN otherwise).
     """
@@ -228,25 +245,183 @@ def largest_lyapunov(
     for k in range(transient):
         u, v, _ = advance(u, v, k)
 
-    block_len = n_steps // n_blocks
-    block_sums = np.zeros(n_blocks)
-    hist = DecimatedHistory(history_size)
-    total = 0.0
+    sums = _GrowthSums(n_steps, dt, n_blocks, history_size)
     for k in range(1, n_steps + 1):
         u, v, lg = advance(u, v, transient + k)
-        total += lg
-        b = (k - 1) // block_len
-        if b < n_blocks:  # remainder steps count in the total only
-            block_sums[b] += lg
-        hist.offer(k, total / (k * dt))
-    exponent = total / (n_steps * dt)
-    block_means = block_sums / (block_len * dt)
-    error = float(np.std(block_means, ddof=1) / np.sqrt(n_blocks))
-    hs, hv = hist.arrays()
-    tail = hv[hs >= n_steps // 2]
-    spread = float(tail.max() - tail.min()) if tail.size else 0.0
-    return LyapunovResult(
-        exponent=float(exponent), error=error, block_means=block_means, tail_spread=spread,
-        history_steps=hs, history=hv, n_steps=n_steps, transient=transient, dt=float(dt),
-        method=method, fd_distance=float(d),
-    )
+        sums.add(lg)
+    return sums.result(transient, method, d)
+
+
+class _GrowthSums:
+    """Running sum, block sums and decimated running average of log growths."""
+
+    def __init__(self, n_steps: int, dt: float, n_blocks: int, history_size: int) -> None:
+        self.n_steps, self.dt, self.n_blocks = int(n_steps), float(dt), int(n_blocks)
+        self.block_len = self.n_steps // self.n_blocks
+        self.block_sums = np.zeros(self.n_blocks)
+        self.hist = DecimatedHistory(history_size)
+        self.total = 0.0
+        self.k = 0
+
+    def add(self, lg: float) -> None:
+        """Count the log growth of the next step."""
+        self.k += 1
+        self.total += lg
+        b = (self.k - 1) // self.block_len
+        if b < self.n_blocks:  # remainder steps count in the total only
+            self.block_sums[b] += lg
+        self.hist.offer(self.k, self.total / (self.k * self.dt))
+
+    def result(self, transient: int, method: str, d: float) -> LyapunovResult:
+        """The :class:`LyapunovResult` of the ``n_steps`` steps counted."""
+        if self.k != self.n_steps:
+            raise ContfilError(f"Lyapunov: {self.k} of {self.n_steps} steps counted")
+        exponent = self.total / (self.n_steps * self.dt)
+        block_means = self.block_sums / (self.block_len * self.dt)
+        error = float(np.std(block_means, ddof=1) / np.sqrt(self.n_blocks))
+        hs, hv = self.hist.arrays()
+        tail = hv[hs >= self.n_steps // 2]
+        spread = float(tail.max() - tail.min()) if tail.size else 0.0
+        return LyapunovResult(
+            exponent=float(exponent), error=error, block_means=block_means, tail_spread=spread,
+            history_steps=hs, history=hv, n_steps=self.n_steps, transient=int(transient),
+            dt=self.dt, method=method, fd_distance=float(d),
+        )
+
+
+class LockstepSystem(Protocol):
+    """A stateful stepper that :class:`LockstepLyapunov` can drive.
+
+    ``history()`` is the whole state of the discrete map after the steps
+    taken (1-D; for a one-step method the state, for a two-step method the
+    last two states), the space in which the companion is perturbed and
+    renormalised. ``follow(reference, h)`` puts this system at map state
+    ``h`` with everything else that the next step depends on (step index,
+    solver caches) taken from ``reference``, so that with ``h`` equal to
+    ``reference.history()`` the two systems take the same next steps.
+    """
+
+    def advance(self, n: int) -> None:
+        """Take ``n`` steps (``n >= 1``)."""
+        ...
+
+    def history(self) -> NDArray[np.float64]:
+        """The state of the discrete map (1-D)."""
+        ...
+
+    def follow(self, reference: LockstepSystem, h: NDArray[np.float64]) -> None:
+        """Be at map state ``h``, otherwise as ``reference``."""
+        ...
+
+
+class LockstepLyapunov:
+    """Largest Lyapunov exponent along a trajectory stepped by its owner.
+
+    The owner calls :meth:`advance` instead of stepping ``reference`` itself:
+    ``reference`` and ``companion`` take the same steps, and at every
+    ``map_steps``-th step the companion's offset ``w`` from the reference
+    (in :meth:`LockstepSystem.history` space) gives the growth ``|w| / d``
+    and the companion is put back at ``reference + d w/|w|`` (Benettin with
+    a two-trajectory tangent). The first ``skip_maps`` maps align the
+    direction and are not averaged; the next ``n_maps`` are, in ``n_blocks``
+    blocks for the error, as :func:`largest_lyapunov`. After them the
+    companion is no longer stepped (:attr:`done`).
+
+    Parameters
+    ----------
+    reference, companion:
+        Two :class:`LockstepSystem`; the companion is placed at
+        ``reference.history() + d v0`` here.
+    map_steps:
+        Steps per map.
+    n_maps:
+        Maps averaged (>= n_blocks).
+    dt:
+        Time per step (a map is ``map_steps dt``).
+    skip_maps:
+        Maps before the averaged ones (alignment of the direction).
+    fd_distance, v0, seed, n_blocks, history_size:
+        As in :func:`largest_lyapunov` (``d`` relative to ``|history|``).
+    """
+
+    def __init__(
+        self,
+        reference: LockstepSystem,
+        companion: LockstepSystem,
+        map_steps: int,
+        n_maps: int,
+        dt: float,
+        *,
+        skip_maps: int = 0,
+        fd_distance: float | None = None,
+        v0: ArrayLike | None = None,
+        seed: int = 0,
+        n_blocks: int = 10,
+        history_size: int = 1000,
+    ) -> None:
+        if int(map_steps) < 1 or skip_maps < 0:
+            raise SpecError(f"LockstepLyapunov: need map_steps >= 1 and skip_maps >= 0, got "
+                            f"{map_steps}, {skip_maps}")
+        if n_maps < n_blocks or n_blocks < 2:
+            raise SpecError(f"LockstepLyapunov: need n_blocks >= 2 and n_maps >= n_blocks, got "
+                            f"n_maps={n_maps}, n_blocks={n_blocks}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise SpecError(f"LockstepLyapunov: dt must be positive and finite, got {dt}")
+        self.reference, self.companion = reference, companion
+        self.map_steps, self.n_maps, self.skip_maps = int(map_steps), int(n_maps), int(skip_maps)
+        h = _finite(reference.history(), "reference state", 0)
+        v = (np.random.default_rng(seed).standard_normal(h.size) if v0 is None
+             else np.array(v0, dtype=float))
+        nv = float(np.linalg.norm(v))
+        if v.shape != h.shape or not (np.isfinite(nv) and nv > 0):
+            raise SpecError("LockstepLyapunov: v0 must be finite, non-zero, shaped as history()")
+        d = 1e-7 * max(1.0, float(np.linalg.norm(h))) if fd_distance is None else fd_distance
+        if not (np.isfinite(d) and d > 0):
+            raise SpecError(f"LockstepLyapunov: fd_distance must be > 0, got {fd_distance}")
+        self.d = float(d)
+        self.steps = 0  # steps since the start
+        self.maps = 0  # maps completed
+        self._sums = _GrowthSums(self.n_maps, dt * self.map_steps, n_blocks, history_size)
+        companion.follow(reference, h + self.d * v / nv)
+
+    @property
+    def done(self) -> bool:
+        """All maps taken: the companion is no longer stepped."""
+        return self.maps >= self.skip_maps + self.n_maps
+
+    def advance(self, n: int) -> None:
+        """Step the reference ``n`` steps (and the companion while maps remain)."""
+        n = int(n)
+        if n < 0:
+            raise SpecError(f"LockstepLyapunov.advance: n must be >= 0, got {n}")
+        while n > 0:
+            if self.done:
+                self.reference.advance(n)
+                self.steps += n
+                return
+            s = min(n, self.map_steps - self.steps % self.map_steps)
+            self.reference.advance(s)
+            self.companion.advance(s)
+            self.steps += s
+            n -= s
+            if self.steps % self.map_steps == 0:
+                self._renormalise()
+
+    def _renormalise(self) -> None:
+        self.maps += 1
+        h = _finite(self.reference.history(), "reference state", self.steps)
+        w = _finite(self.companion.history(), "companion state", self.steps) - h
+        g = float(np.linalg.norm(w))
+        if g == 0.0:
+            raise ContfilError(f"LockstepLyapunov: the companion met the reference at map "
+                               f"{self.maps} (exponent is -inf)")
+        if self.maps > self.skip_maps:
+            self._sums.add(np.log(g / self.d))
+        self.companion.follow(self.reference, h + (self.d / g) * w)
+
+    def result(self) -> LyapunovResult:
+        """The exponent over the averaged maps (all of them must have been taken)."""
+        if not self.done:
+            raise ContfilError(f"LockstepLyapunov: {self.maps} of "
+                               f"{self.skip_maps + self.n_maps} maps taken")
+        return self._sums.result(self.skip_maps, "lockstep", self.d)

@@ -22,6 +22,16 @@ The samples feed the generic tools of :mod:`contfil.analysis`:
   differences) and :func:`~contfil.analysis.bisection.edge_track` need: both
   evolve several states through the same map, which a stateful stepper
   cannot do.
+
+:func:`classify_run` measures the largest Lyapunov exponent along the
+classified trajectory itself (decisions 39): the classified run is the
+reference of :class:`~contfil.analysis.lyapunov.LockstepLyapunov`, a
+companion BDF2 run is stepped in lockstep and put back next to it after every
+map. The BDF2 map acts on the pair ``(u_k, u_{k-1})`` (the step uses the
+previous state and increment), so that pair is the space in which the
+companion is perturbed and renormalised (:class:`BDF2Lockstep`); a restart of
+the companion by backward Euler would differ from the reference's step by
+the method's local error, far above the companion's distance.
 """
 
 from __future__ import annotations
@@ -33,11 +43,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.analysis.classify import AttractorClass, classify_samples
-from contfil.analysis.lyapunov import largest_lyapunov
+from contfil.analysis.classify import AttractorClass, _redecide, classify_samples
+from contfil.analysis.lyapunov import LockstepLyapunov
 from contfil.errors import NonFiniteError, SpecError
 
 from .integrators.bdf2 import BDF2Stepper, flow
+from .integrators.bdf2_stepper import _relative_rotvec
 from .kernels.geometry import frames_from_state, positions, tangents
 from .physics import embed_planar
 
@@ -47,6 +58,7 @@ __all__ = [
     "Sample",
     "LongRun",
     "step_map",
+    "BDF2Lockstep",
     "tip_position",
     "rotation_invariant",
     "classify_run",
@@ -168,6 +180,64 @@ class LongRun:
             yield s.u
 
 
+class BDF2Lockstep:
+    """A :class:`LongRun` as a :class:`~contfil.analysis.lyapunov.LockstepSystem`.
+
+    The map state (:meth:`history`) is ``(u_k, u_{k-1})`` in model layout: the
+    BDF2 step from ``k`` uses the frames and positions at ``k`` and ``k-1``
+    and the increment ``log(q^k q^{k-1 *})``, all functions of that pair.
+    :meth:`follow` rebuilds them from a pair and takes the loads (the
+    Broyden predictor), the carried inverse Jacobian, the step index and the
+    time from the reference's stepper, so a companion placed at the
+    reference's own pair takes the reference's next steps to round-off
+    (``test_lockstep_companion_at_the_reference_follows_it``).
+
+    ``u_prev`` is the state before the run's last step (``u`` itself before
+    the first: the first step is backward Euler and ignores it).
+    """
+
+    def __init__(self, run: LongRun, u_prev: Array | None = None) -> None:
+        self.run = run
+        self._prev = np.array(run.state if u_prev is None else u_prev, dtype=float)
+
+    def advance(self, n: int) -> None:
+        """Take ``n >= 1`` steps, keeping the state before the last."""
+        if n < 1:
+            raise SpecError(f"BDF2Lockstep.advance: n must be >= 1, got {n}")
+        if n > 1:
+            self.run.advance(n - 1)
+        self._prev = self.run.state
+        self.run.advance(1)
+
+    def history(self) -> Array:
+        """``(u_k, u_{k-1})`` concatenated."""
+        return np.concatenate([self.run.state, self._prev])
+
+    def follow(self, reference: Any, h: Array) -> None:
+        """Be at the pair ``h``, with the reference stepper's loads, Jacobian and step."""
+        st, rs = self.run.stepper, reference.run.stepper
+        n = h.size // 2
+        u, up = np.asarray(h[:n], dtype=float), np.asarray(h[n:], dtype=float)
+        ph = st.phys
+        q = frames_from_state(embed_planar(u) if ph.planar else u)
+        qp = frames_from_state(embed_planar(up) if ph.planar else up)
+        N = ph.N
+        z = np.zeros(6 * N)
+        z[: 3 * (N - 1)] = _relative_rotvec(q[1:], qp[1:]).ravel()
+        z[3 * (N - 1):] = rs._zp[3 * (N - 1):]
+        # the stepper's history arrays, as BDF2Stepper._rescue rebuilds them
+        st._q[:] = q
+        st._x[:] = positions(tangents(q), ph.dL)
+        st._xm1[:] = positions(tangents(qp), ph.dL)
+        st._zp[:] = 0.0
+        st._zp[st._zmap] = z[st._zmap]
+        st._zpm1[:] = rs._zpm1
+        st._H[:] = rs._H
+        st._info[:] = rs._info
+        st.k, st.time, st._ready = rs.k, rs.time, True
+        self._prev = up.copy()
+
+
 def step_map(model: Any, p: Array | None, dt: float, steps: int = 1,
              **stepper_kw: Any) -> Callable[[Array], Array]:
     """Pure map ``u -> phi_{steps dt}(u)``: a fresh BDF2 run of ``steps`` steps.
@@ -251,10 +321,16 @@ def classify_run(
     transient_steps:
         Steps discarded first.
     lyapunov_samples:
-        If > 0, the largest Lyapunov exponent by two-trajectory finite
-        differences of :func:`step_map` (``lyapunov_map_steps`` BDF2 steps per
-        map, default ``sample_every``) over this many maps, from the
-        post-transient state.
+        If > 0, the largest Lyapunov exponent along the classified trajectory
+        (:class:`~contfil.analysis.lyapunov.LockstepLyapunov`, a companion
+        run renormalised every map of ``lyapunov_map_steps`` steps, default
+        ``sample_every``), averaged over the *last* ``min(lyapunov_samples,
+        W)`` maps of the classified window of ``W = n_samples sample_every //
+        lyapunov_map_steps`` maps; the window's earlier maps align the
+        direction. So ``lyapunov_samples >= W`` (the usual choice) gives the
+        exponent over the whole classified window, the same trajectory and
+        the same time span as the section and spectrum. The evidence records
+        ``lyapunov_maps`` and ``lyapunov_skip_maps``.
     classify_kw:
         Passed to :func:`~contfil.analysis.classify.classify_samples`
         (defaults here: tip position as observable, :func:`rotation_invariant`).
@@ -266,21 +342,40 @@ def classify_run(
     """
     skw = dict(stepper_kw or {})
     run = LongRun(model, u0, p, dt, sample_every, **skw)
-    run.advance(int(transient_steps))
+    nt = int(transient_steps)
+    if nt > 0:
+        run.advance(nt - 1)
+    u_prev = run.state
+    run.advance(min(nt, 1))
     extra: dict[str, Any] = {"dt": run.dt, "sample_every": run.sample_every,
-                             "transient_steps": int(transient_steps)}
-    if lyapunov_samples > 0:
-        # from the post-transient state, on its own copy of the trajectory,
-        # so the classification below can weigh it in directly
-        m = int(lyapunov_map_steps or sample_every)
-        classify_kw["lyapunov"] = largest_lyapunov(
-            step_map(model, p, run.dt, m, **skw), run.state, int(lyapunov_samples),
-            run.dt * m, n_blocks=10)
-        extra["lyapunov_map_steps"] = m
+                             "transient_steps": nt}
     classify_kw.setdefault("observable", lambda u: tip_position(model, u))
     classify_kw.setdefault("invariant", lambda u: rotation_invariant(model, u))
-    res = classify_samples(run.states(n_samples), run.dt * run.sample_every, n_samples,
-                           **classify_kw)
-    extra["t_end"] = run.t
-    return res, state_node_data(res, model, p, extra)
+    if lyapunov_samples <= 0:
+        res = classify_samples(run.states(n_samples), run.dt * run.sample_every, n_samples,
+                               **classify_kw)
+        extra["t_end"] = run.t
+        return res, state_node_data(res, model, p, extra)
+    m = int(lyapunov_map_steps or sample_every)
+    window = int(n_samples) * run.sample_every // m
+    n_maps = min(int(lyapunov_samples), window)
+    ref = BDF2Lockstep(run, u_prev)
+    comp = BDF2Lockstep(LongRun(model, run.state, p, dt, 1, **skw))
+    lock = LockstepLyapunov(ref, comp, m, n_maps, run.dt, skip_maps=window - n_maps,
+                            n_blocks=10)
 
+    def states() -> Iterator[Array]:
+        for _ in range(int(n_samples)):
+            lock.advance(run.sample_every)
+            yield run.state
+
+    kw = {k: v for k, v in classify_kw.items() if k not in ("lyapunov",)}
+    res = classify_samples(states(), run.dt * run.sample_every, n_samples, **kw)
+    # the exponent of the same window, weighed in as classify_samples would
+    # (the window's last maps are complete: n_samples sample_every >= window m)
+    lyap = lock.result()
+    res = _redecide(res, lyap, **{k: v for k, v in kw.items() if k in (
+        "fp_tol", "rw_tol", "section_tol", "max_period", "discrete_power", "lyap_tol")})
+    extra.update(lyapunov_map_steps=m, lyapunov_maps=n_maps, lyapunov_skip_maps=window - n_maps,
+                 lyapunov_method="lockstep", t_end=run.t)
+    return res, state_node_data(res, model, p, extra)
