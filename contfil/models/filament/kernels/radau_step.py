@@ -46,7 +46,10 @@ from .bdf2_tangent import (
     reduced_counts,
     residual_frame_jacobian,
 )
-from .effects import P_A, P_DL, P_ETA
+from .effects import P_A, P_DL, P_ETA, P_KB, P_KT, active_force
+from .elastic import elastic_torques
+from .forces import segment_loads
+from .frame_jacobian import velocity_frame_jacobian_rows
 from .geometry import positions, tangents
 
 
@@ -262,6 +265,73 @@ def stage_blocks(
 
 
 @njit(cache=True)
+def _load_columns_rows(
+    t: np.ndarray,
+    gdt: float,
+    par: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    nu: int,
+    M: np.ndarray,
+    A: np.ndarray,
+) -> np.ndarray:
+    """:func:`.bdf2_tangent._load_columns` (the exact load columns) with the
+    mobility read by rows: each load column is at most six mobility columns
+    (two segments' forces and torques), gathered from contiguous rows."""
+    N = t.shape[0]
+    nz = zmap.shape[0]
+    nl = nz - nu
+    dL = par[P_DL]
+    sF, sT = scale[3 * (N - 1)], scale[6 * N - 1]
+    h = 0.5 * dL
+    oL = 3 * (N - 1)
+    RT = 3 * N
+    idx = np.zeros((nl, 6), dtype=np.int64)
+    cf = np.zeros((nl, 6))
+    for jj in range(nl):
+        col = zmap[nu + jj]
+        if col < 6 * (N - 1):
+            j, k = (col - oL) // 3, (col - oL) % 3
+            k1, k2 = (k + 1) % 3, (k + 2) % 3
+            idx[jj, 0], cf[jj, 0] = 3 * j + k, sF
+            idx[jj, 1], cf[jj, 1] = 3 * j + 3 + k, -sF
+            idx[jj, 2], cf[jj, 2] = RT + 3 * j + k1, sF * h * t[j, k2]
+            idx[jj, 3], cf[jj, 3] = RT + 3 * j + k2, -sF * h * t[j, k1]
+            idx[jj, 4], cf[jj, 4] = RT + 3 * j + 3 + k1, sF * h * t[j + 1, k2]
+            idx[jj, 5], cf[jj, 5] = RT + 3 * j + 3 + k2, -sF * h * t[j + 1, k1]
+        elif col < 6 * N - 3:
+            idx[jj, 0], cf[jj, 0] = col - 6 * (N - 1), sF
+        else:
+            idx[jj, 0], cf[jj, 0] = RT + col - (6 * N - 3), sT
+    MG = np.empty((6 * N, nl))
+    for i in range(6 * N):
+        for jj in range(nl):
+            acc = 0.0
+            for p in range(6):
+                acc += cf[jj, p] * M[i, idx[jj, p]]
+            MG[i, jj] = acc
+    out = np.empty((nz, nl))
+    for i in range(nz):
+        r = rmap[i]
+        if r < 3 * N:
+            for j in range(nl):
+                out[i, j] = -gdt / dL * MG[r, j]
+        else:
+            n, c = (r - 3 * N) // 3, (r - 3 * N) % 3
+            if n == 0:
+                for j in range(nl):
+                    out[i, j] = -gdt * MG[r, j]
+            else:
+                An = A[n - 1]
+                for j in range(nl):
+                    out[i, j] = -gdt * (An[c, 0] * MG[3 * N + 3 * n, j]
+                                        + An[c, 1] * MG[3 * N + 3 * n + 1, j]
+                                        + An[c, 2] * MG[3 * N + 3 * n + 2, j])
+    return out
+
+
+@njit(cache=True)
 def newton_blocks(
     Zf: np.ndarray,
     qk: np.ndarray,
@@ -278,6 +348,114 @@ def newton_blocks(
     """``Jd`` (s, nz, nz) and ``K`` (s, nz, nu) of :func:`stage_blocks` in
     place, without what only the tangent needs (``dF/dth^k``, ``dF/ddt``,
     ``dF/ds``): the Newton matrix of a step.
+
+    The same exact derivative as :func:`stage_blocks` (exact load columns;
+    increment columns ``G dexp(u) + E``, ``G`` the exact frame derivative,
+    ``E`` the explicit ``u`` of the orientation rows), assembled with less
+    work per stage: the segment loads once per stage, ``Omega`` as the dense
+    mobility's product, the frame derivative on the selected rows and
+    rotation components only
+    (:func:`.frame_jacobian.velocity_frame_jacobian_rows`), the load columns
+    by mobility rows. Equal to :func:`newton_blocks_reference` to round-off
+    (tested).
+    """
+    s = Zf.shape[0]
+    N = qk.shape[0]
+    nz = zmap.shape[0]
+    nu, npos = reduced_counts(zmap, rmap, N)
+    dL = par[P_DL]
+    R = 3 * N
+    rinv = -np.ones(6 * N, dtype=np.int64)
+    for a in range(nz):
+        rinv[rmap[a]] = a
+    cmask = np.zeros(3, dtype=np.bool_)
+    for j in range(nu):
+        cmask[zmap[j] % 3] = True
+    q = np.empty((N, 4))
+    FT = np.empty(6 * N)
+    Om = np.empty((N, 3))
+    G = np.empty((nz, nu))
+    for i in range(s):
+        zf = Zf[i]
+        gdt = dt / W[i, i]
+        frames_at(zf, qk, q)
+        t = tangents(q)
+        X = positions(t, dL)
+        Lam, Fc, Tc = unpack_loads(zf, N)
+        Mob = dense_mobility(X, par, flags)
+        B, A, _ = _segment_blocks(zf, N)
+        TE = elastic_torques(q, dL, par[P_KB], par[P_KT])
+        F, T = segment_loads(t, Lam, Fc, Tc, TE, active_force(par, flags, t), dL)
+        for n in range(N):
+            for k in range(3):
+                FT[3 * n + k] = F[n, k]
+                FT[R + 3 * n + k] = T[n, k]
+        for n in range(N):
+            for k in range(3):
+                acc = 0.0
+                row = R + 3 * n + k
+                for c in range(6 * N):
+                    acc += Mob[row, c] * FT[c]
+                Om[n, k] = acc
+        Jl = _load_columns_rows(t, gdt, par, zmap, rmap, scales[i], nu, Mob, A)
+        for a in range(nz):
+            for b in range(nz - nu):
+                Jd[i, a, nu + b] = Jl[a, b]
+        Wc = velocity_frame_jacobian_rows(q, t, X, Lam, F, T, par, flags, Mob, rmap, rinv,
+                                          cmask)
+        Arm = arm_matrix(t, zmap, rmap, nu, npos, dL)
+        for a in range(nz):
+            r = rmap[a]
+            if r < R:
+                for j in range(nu):
+                    G[a, j] = -gdt / dL * Wc[a, zmap[j]] + Arm[a, j]
+            else:
+                n, k = (r - R) // 3, (r - R) % 3
+                if n == 0:
+                    for j in range(nu):
+                        G[a, j] = -gdt * Wc[a, zmap[j]]
+                else:
+                    An = A[n - 1]
+                    for j in range(nu):
+                        acc = 0.0
+                        for kk in range(3):
+                            b = rinv[R + 3 * n + kk]
+                            if b >= 0:
+                                acc += An[k, kk] * Wc[b, zmap[j]]
+                        G[a, j] = -gdt * acc
+        Br = _reduced_block(B, zmap, nu)
+        Ju = G @ Br
+        for a in range(nz):
+            for b in range(nu):
+                Jd[i, a, b] = Ju[a, b]
+        add_orientation_u(Jd[i], zf, Om, zmap, rinv, nu, gdt)
+        AB = Arm @ Br
+        for a in range(nz):
+            for b in range(nu):
+                K[i, a, b] = AB[a, b] if a < npos else 0.0
+        for b in range(nu):
+            a = rinv[R + 3 * (zmap[b] // 3 + 1) + zmap[b] % 3]
+            if a >= 0:
+                K[i, a, b] += 1.0
+
+
+@njit(cache=True)
+def newton_blocks_reference(
+    Zf: np.ndarray,
+    qk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+    Jd: np.ndarray,
+    K: np.ndarray,
+) -> None:
+    """:func:`newton_blocks` as assembled before session 11 (the BDF2 tangent
+    kernels called per stage), kept as the reference the faster assembly is
+    tested and benchmarked against.
 
     The diagonal blocks are assembled as :func:`.bdf2_tangent.step_matrices`
     does (exact load columns; increment columns ``G dexp(u) + E``, ``G`` the

@@ -164,3 +164,103 @@ def rpy_apply_jacobian_masked(
             _add_cross_block(K, R + 3 * i, ci, cj, h, Fj, 1.0, cp, dcp, r, rmask, xmask)
             _add_cross_block(K, R + 3 * j, ci, cj, h, Fi, -1.0, cp, dcp, r, rmask, xmask)
     return K
+
+
+@njit(cache=True)
+def rpy_apply_jacobian_rows(
+    X: np.ndarray, a: float, eta: float, F: np.ndarray, T: np.ndarray, rinv: np.ndarray,
+    nr: int, xmask: np.ndarray,
+) -> np.ndarray:
+    """The rows of :func:`rpy_apply_jacobian_masked` that ``rinv`` selects, compactly.
+
+    ``rinv`` (6N,) maps a row of ``[V; Omega]`` to its compact index (``-1``:
+    not needed); returns ``K`` (nr, 3N) with only the position components
+    ``xmask`` (3,) filled. The same entries as the masked kernel (each pair's
+    derivative blocks, the couplings folded into the same entries), for the
+    Radau Newton matrix: no zero rows, no per-entry mask tests.
+    """
+    N = X.shape[0]
+    K = np.zeros((nr, 3 * N))
+    R = 3 * N
+    nx = 0
+    for m in range(3):
+        if xmask[m]:
+            nx += 1
+    xs = np.empty(nx, dtype=np.int64)
+    nx = 0
+    for m in range(3):
+        if xmask[m]:
+            xs[nx] = m
+            nx += 1
+    h = np.empty(3)
+    for i in range(N):
+        for j in range(i + 1, N):
+            h[0] = X[i, 0] - X[j, 0]
+            h[1] = X[i, 1] - X[j, 1]
+            h[2] = X[i, 2] - X[j, 2]
+            r = np.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
+            h[0] /= r
+            h[1] /= r
+            h[2] /= r
+            ttI, ttR, rrI, rrR, cp = _pair_coeffs(r, a, eta)
+            dttI, dttR, drrI, drrR, dcp = pair_coeff_derivs(r, a, eta)
+            ci, cj = 3 * i, 3 * j
+            e = dcp - cp / r
+            f = cp / r
+            # the four target segments: (row base, sym load seg, sym coeffs, cross load, sign)
+            for blk in range(4):
+                if blk == 0:
+                    row, sv, cv, sg = 3 * i, 0, 1, 1.0  # V_i: F_j (tt), T_j x rh
+                    seg = j
+                    dA_, B_, dB_ = dttI, ttR, dttR
+                elif blk == 1:
+                    row, sv, cv, sg = 3 * j, 0, 1, -1.0  # V_j: F_i, -T_i x rh
+                    seg = i
+                    dA_, B_, dB_ = dttI, ttR, dttR
+                elif blk == 2:
+                    row, sv, cv, sg = R + 3 * i, 1, 0, 1.0  # Omega_i: T_j (rr), F_j x rh
+                    seg = j
+                    dA_, B_, dB_ = drrI, rrR, drrR
+                else:
+                    row, sv, cv, sg = R + 3 * j, 1, 0, -1.0  # Omega_j: T_i, -F_i x rh
+                    seg = i
+                    dA_, B_, dB_ = drrI, rrR, drrR
+                if rinv[row] < 0 and rinv[row + 1] < 0 and rinv[row + 2] < 0:
+                    continue
+                v0 = F[seg, 0] if sv == 0 else T[seg, 0]
+                v1 = F[seg, 1] if sv == 0 else T[seg, 1]
+                v2 = F[seg, 2] if sv == 0 else T[seg, 2]
+                w0 = F[seg, 0] if cv == 0 else T[seg, 0]
+                w1 = F[seg, 1] if cv == 0 else T[seg, 1]
+                w2 = F[seg, 2] if cv == 0 else T[seg, 2]
+                s = h[0] * v0 + h[1] * v1 + h[2] * v2
+                cI = B_ * s / r
+                cHH = dB_ * s - 2.0 * B_ * s / r
+                cHV = B_ / r
+                # w x rh
+                x0 = w1 * h[2] - w2 * h[1]
+                x1 = w2 * h[0] - w0 * h[2]
+                x2 = w0 * h[1] - w1 * h[0]
+                es = sg * e
+                fs = sg * f
+                for k in range(3):
+                    rr = rinv[row + k]
+                    if rr < 0:
+                        continue
+                    vk = v0 if k == 0 else (v1 if k == 1 else v2)
+                    hk = h[k]
+                    xk = x0 if k == 0 else (x1 if k == 1 else x2)
+                    for p in range(nx):
+                        m = xs[p]
+                        vm = v0 if m == 0 else (v1 if m == 1 else v2)
+                        d = dA_ * vk * h[m] + cHH * hk * h[m] + cHV * hk * vm + es * xk * h[m]
+                        if k == m:
+                            d += cI
+                        elif m == (k + 1) % 3:
+                            # [w]x[k, k+1] = -w[k+2]
+                            d -= fs * (w2 if k == 0 else (w0 if k == 1 else w1))
+                        else:
+                            d += fs * (w1 if k == 0 else (w2 if k == 1 else w0))
+                        K[rr, ci + m] += d
+                        K[rr, cj + m] -= d
+    return K
