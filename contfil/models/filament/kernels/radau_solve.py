@@ -131,6 +131,7 @@ def block_factor(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
         for b in range(s * nu):
             Cap[a, b] = 0.0
         Cap[a, a] = 1.0
+    Kr = np.empty((nz, (s - 1) * nu))
     for i in range(s):
         # getrf of J_i^T and, in the same LAPACK call, Gt_i = (J_i^{-T} P^T)^T
         # = P J_i^{-1} (its Fortran view is the right-hand side P^T)
@@ -141,14 +142,19 @@ def block_factor(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
             Gi[a, a] = 1.0
         if _GESV(_KIND, nz, nu, Jd[i].ctypes, nz, piv[i].ctypes, Gi.ctypes, nz) != 0:
             return 1 + i
-        for j in range(s):
-            if j == i:
-                continue
+        # S_ij = P J_i^{-1} K_j for all j != i in one product
+        for jj in range(s - 1):
+            j = jj if jj < i else jj + 1
+            for r in range(nz):
+                for b in range(nu):
+                    Kr[r, jj * nu + b] = K[j, r, b]
+        S = np.dot(Gi, Kr)
+        for jj in range(s - 1):
+            j = jj if jj < i else jj + 1
             w = W[i, j] / W[i, i]
-            S = np.dot(Gi, K[j])
             for a in range(nu):
                 for b in range(nu):
-                    Cap[i * nu + a, j * nu + b] += w * S[a, b]
+                    Cap[i * nu + a, j * nu + b] += w * S[a, jj * nu + b]
     if lu_factor_t(Cap, cpiv) != 0:
         return s + 1
     return 0

@@ -51,6 +51,7 @@ from .elastic import elastic_torques
 from .forces import segment_loads
 from .frame_jacobian import velocity_frame_jacobian_rows
 from .geometry import positions, tangents
+from .quaternion import dexp_inv
 
 
 def radau_tableau(s: int) -> tuple[np.ndarray, np.ndarray]:
@@ -113,7 +114,92 @@ def stage_residual(
     scales: np.ndarray,
 ) -> float:
     """Scaled stage residuals ``F[i] = R_i(Z)`` (s, nz) in place; returns the
-    infinity norm. ``Z`` (s, nz): scaled reduced stage unknowns."""
+    infinity norm. ``Z`` (s, nz): scaled reduced stage unknowns.
+
+    Row for row :func:`.bdf2_residual.residual` with ``(a1, a2, b1, g) = (1, 0,
+    1, 1/w_ii)`` and the stage history (module docstring), the same
+    operations in the same order (bit for bit :func:`stage_residual_reference`),
+    with each stage's frames and positions formed once for its own rows and
+    the other stages' histories.
+    """
+    s = Z.shape[0]
+    N = qk.shape[0]
+    dL = par[P_DL]
+    Xs = np.empty((s, N, 3))
+    Ts = np.empty((s, N, 3))
+    Qs = np.empty((s, N, 4))
+    Us = np.empty((s, 6 * N))
+    q = np.empty((N, 4))
+    for j in range(s):
+        zf = full_unknowns(Z[j], zmap, scales[j], N)
+        Us[j] = zf
+        frames_at(zf, qk, q)
+        t = tangents(q)
+        Qs[j] = q
+        Ts[j] = t
+        Xs[j] = positions(t, dL)
+    rfull = np.empty(6 * N)
+    xh = np.empty((N, 3))
+    uh = np.zeros(3 * (N - 1))
+    u = np.zeros(3)
+    w = np.empty(3)
+    res = 0.0
+    for i in range(s):
+        for n in range(N):
+            for k in range(3):
+                xh[n, k] = xk[n, k]
+        for m in range(3 * (N - 1)):
+            uh[m] = 0.0
+        for j in range(s):
+            if j == i:
+                continue
+            wj = W[i, j] / W[i, i]
+            for n in range(N):
+                for k in range(3):
+                    xh[n, k] -= wj * (Xs[j, n, k] - xk[n, k])
+            for m in range(3 * (N - 1)):
+                uh[m] -= wj * Us[j, m]
+        zf = Us[i]
+        Lam, Fc, Tc = unpack_loads(zf, N)
+        V, Om = velocities(Qs[i], Ts[i], Xs[i], Lam, Fc, Tc, par, flags)
+        gdt = (1.0 / W[i, i]) * dt
+        for n in range(N):
+            for k in range(3):
+                rfull[3 * n + k] = (Xs[i, n, k] - xh[n, k] - gdt * V[n, k]) / dL
+            if n == 0:
+                for k in range(3):
+                    rfull[3 * N + k] = -gdt * Om[0, k]
+            else:
+                for k in range(3):
+                    u[k] = zf[3 * (n - 1) + k]
+                    w[k] = Om[n, k]
+                di = dexp_inv(u, w)
+                for k in range(3):
+                    rfull[3 * N + 3 * n + k] = u[k] - uh[3 * (n - 1) + k] - gdt * di[k]
+        for m in range(F.shape[1]):
+            F[i, m] = rfull[rmap[m]]
+            a = abs(F[i, m])
+            if not a <= res:  # NaN propagates
+                res = a
+    return res
+
+
+@njit(cache=True)
+def stage_residual_reference(
+    Z: np.ndarray,
+    F: np.ndarray,
+    qk: np.ndarray,
+    xk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+) -> float:
+    """:func:`stage_residual` by calls of :func:`.bdf2_residual.residual`
+    (the form before session 11; bit for bit the same values, tested)."""
     s = Z.shape[0]
     N = qk.shape[0]
     dL = par[P_DL]
@@ -275,10 +361,12 @@ def _load_columns_rows(
     nu: int,
     M: np.ndarray,
     A: np.ndarray,
+    rinv: np.ndarray,
 ) -> np.ndarray:
     """:func:`.bdf2_tangent._load_columns` (the exact load columns) with the
     mobility read by rows: each load column is at most six mobility columns
-    (two segments' forces and torques), gathered from contiguous rows."""
+    (two segments' forces and torques), gathered from the selected rows
+    (``rinv``: full row -> selected row, -1 elsewhere) only."""
     N = t.shape[0]
     nz = zmap.shape[0]
     nl = nz - nu
@@ -304,30 +392,37 @@ def _load_columns_rows(
             idx[jj, 0], cf[jj, 0] = col - 6 * (N - 1), sF
         else:
             idx[jj, 0], cf[jj, 0] = RT + col - (6 * N - 3), sT
-    MG = np.empty((6 * N, nl))
-    for i in range(6 * N):
+    # the mobility rows of the selected residual rows only: the orientation
+    # rows mix the selected components of Omega_n by dexp_inv(u_n), which is
+    # exact for an invariant block (as residual_frame_jacobian)
+    MG = np.empty((nz, nl))
+    for a in range(nz):
+        r = rmap[a]
         for jj in range(nl):
             acc = 0.0
             for p in range(6):
-                acc += cf[jj, p] * M[i, idx[jj, p]]
-            MG[i, jj] = acc
+                acc += cf[jj, p] * M[r, idx[jj, p]]
+            MG[a, jj] = acc
     out = np.empty((nz, nl))
-    for i in range(nz):
-        r = rmap[i]
+    for a in range(nz):
+        r = rmap[a]
         if r < 3 * N:
             for j in range(nl):
-                out[i, j] = -gdt / dL * MG[r, j]
+                out[a, j] = -gdt / dL * MG[a, j]
         else:
             n, c = (r - 3 * N) // 3, (r - 3 * N) % 3
             if n == 0:
                 for j in range(nl):
-                    out[i, j] = -gdt * MG[r, j]
+                    out[a, j] = -gdt * MG[a, j]
             else:
                 An = A[n - 1]
                 for j in range(nl):
-                    out[i, j] = -gdt * (An[c, 0] * MG[3 * N + 3 * n, j]
-                                        + An[c, 1] * MG[3 * N + 3 * n + 1, j]
-                                        + An[c, 2] * MG[3 * N + 3 * n + 2, j])
+                    out[a, j] = 0.0
+                for kk in range(3):
+                    b = rinv[3 * N + 3 * n + kk]
+                    if b >= 0:
+                        for j in range(nl):
+                            out[a, j] -= gdt * An[c, kk] * MG[b, j]
     return out
 
 
@@ -397,7 +492,7 @@ def newton_blocks(
                 for c in range(6 * N):
                     acc += Mob[row, c] * FT[c]
                 Om[n, k] = acc
-        Jl = _load_columns_rows(t, gdt, par, zmap, rmap, scales[i], nu, Mob, A)
+        Jl = _load_columns_rows(t, gdt, par, zmap, rmap, scales[i], nu, Mob, A, rinv)
         for a in range(nz):
             for b in range(nz - nu):
                 Jd[i, a, nu + b] = Jl[a, b]

@@ -193,74 +193,69 @@ def rpy_apply_jacobian_rows(
             xs[nx] = m
             nx += 1
     h = np.empty(3)
+    v = np.empty(3)
+    w = np.empty(3)
+    av = np.empty(3)
+    bv = np.empty(3)
+    S = np.empty((3, 3))
     for i in range(N):
         for j in range(i + 1, N):
             h[0] = X[i, 0] - X[j, 0]
             h[1] = X[i, 1] - X[j, 1]
             h[2] = X[i, 2] - X[j, 2]
             r = np.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
-            h[0] /= r
-            h[1] /= r
-            h[2] /= r
-            ttI, ttR, rrI, rrR, cp = _pair_coeffs(r, a, eta)
+            ir = 1.0 / r
+            h[0] *= ir
+            h[1] *= ir
+            h[2] *= ir
+            _, ttR, _, rrR, cp = _pair_coeffs(r, a, eta)
             dttI, dttR, drrI, drrR, dcp = pair_coeff_derivs(r, a, eta)
             ci, cj = 3 * i, 3 * j
-            e = dcp - cp / r
-            f = cp / r
-            # the four target segments: (row base, sym load seg, sym coeffs, cross load, sign)
+            f = cp * ir
+            e = dcp - f
             for blk in range(4):
-                if blk == 0:
-                    row, sv, cv, sg = 3 * i, 0, 1, 1.0  # V_i: F_j (tt), T_j x rh
-                    seg = j
-                    dA_, B_, dB_ = dttI, ttR, dttR
-                elif blk == 1:
-                    row, sv, cv, sg = 3 * j, 0, 1, -1.0  # V_j: F_i, -T_i x rh
-                    seg = i
-                    dA_, B_, dB_ = dttI, ttR, dttR
-                elif blk == 2:
-                    row, sv, cv, sg = R + 3 * i, 1, 0, 1.0  # Omega_i: T_j (rr), F_j x rh
-                    seg = j
-                    dA_, B_, dB_ = drrI, rrR, drrR
-                else:
-                    row, sv, cv, sg = R + 3 * j, 1, 0, -1.0  # Omega_j: T_i, -F_i x rh
-                    seg = i
-                    dA_, B_, dB_ = drrI, rrR, drrR
+                # V_i: F_j (tt), +T_j x rh; V_j: F_i, -T_i x rh;
+                # Omega_i: T_j (rr), +F_j x rh; Omega_j: T_i, -F_i x rh
+                row = 3 * i if blk == 0 else (3 * j if blk == 1 else (R + 3 * i if blk == 2
+                                                                       else R + 3 * j))
                 if rinv[row] < 0 and rinv[row + 1] < 0 and rinv[row + 2] < 0:
                     continue
-                v0 = F[seg, 0] if sv == 0 else T[seg, 0]
-                v1 = F[seg, 1] if sv == 0 else T[seg, 1]
-                v2 = F[seg, 2] if sv == 0 else T[seg, 2]
-                w0 = F[seg, 0] if cv == 0 else T[seg, 0]
-                w1 = F[seg, 1] if cv == 0 else T[seg, 1]
-                w2 = F[seg, 2] if cv == 0 else T[seg, 2]
-                s = h[0] * v0 + h[1] * v1 + h[2] * v2
-                cI = B_ * s / r
-                cHH = dB_ * s - 2.0 * B_ * s / r
-                cHV = B_ / r
-                # w x rh
-                x0 = w1 * h[2] - w2 * h[1]
-                x1 = w2 * h[0] - w0 * h[2]
-                x2 = w0 * h[1] - w1 * h[0]
+                odd = blk == 1 or blk == 3
+                seg = i if odd else j
+                sg = -1.0 if odd else 1.0
+                if blk < 2:
+                    dA_, B_, dB_ = dttI, ttR, dttR
+                    for k in range(3):
+                        v[k] = F[seg, k]
+                        w[k] = T[seg, k]
+                else:
+                    dA_, B_, dB_ = drrI, rrR, drrR
+                    for k in range(3):
+                        v[k] = T[seg, k]
+                        w[k] = F[seg, k]
+                sv = h[0] * v[0] + h[1] * v[1] + h[2] * v[2]
+                cI = B_ * sv * ir
+                cHH = dB_ * sv - 2.0 * cI
+                cHV = B_ * ir
                 es = sg * e
                 fs = sg * f
+                # d_km = av_k h_m + bv_k v_m + S_km: the derivative of A v + B rh (rh.v)
+                # and of sg c w x rh ((w x rh)_k = x_k; S = cI I + sg (c/r) [w]x)
+                av[0] = dA_ * v[0] + cHH * h[0] + es * (w[1] * h[2] - w[2] * h[1])
+                av[1] = dA_ * v[1] + cHH * h[1] + es * (w[2] * h[0] - w[0] * h[2])
+                av[2] = dA_ * v[2] + cHH * h[2] + es * (w[0] * h[1] - w[1] * h[0])
+                for k in range(3):
+                    bv[k] = cHV * h[k]
+                S[0, 0], S[0, 1], S[0, 2] = cI, -fs * w[2], fs * w[1]
+                S[1, 0], S[1, 1], S[1, 2] = fs * w[2], cI, -fs * w[0]
+                S[2, 0], S[2, 1], S[2, 2] = -fs * w[1], fs * w[0], cI
                 for k in range(3):
                     rr = rinv[row + k]
                     if rr < 0:
                         continue
-                    vk = v0 if k == 0 else (v1 if k == 1 else v2)
-                    hk = h[k]
-                    xk = x0 if k == 0 else (x1 if k == 1 else x2)
                     for p in range(nx):
                         m = xs[p]
-                        vm = v0 if m == 0 else (v1 if m == 1 else v2)
-                        d = dA_ * vk * h[m] + cHH * hk * h[m] + cHV * hk * vm + es * xk * h[m]
-                        if k == m:
-                            d += cI
-                        elif m == (k + 1) % 3:
-                            # [w]x[k, k+1] = -w[k+2]
-                            d -= fs * (w2 if k == 0 else (w0 if k == 1 else w1))
-                        else:
-                            d += fs * (w1 if k == 0 else (w2 if k == 1 else w0))
+                        d = av[k] * h[m] + bv[k] * v[m] + S[k, m]
                         K[rr, ci + m] += d
                         K[rr, cj + m] -= d
     return K
