@@ -463,6 +463,8 @@ def radau_step_breakdown(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
                                         Zo),
         "newton_blocks": lambda: _kr.newton_blocks(Zf, qk, st.dt, st.W, st.par, st.phys.flags,
                                                    st._zmap, st._rmap, st._scales, Jd, K),
+        "newton_blocks_before": lambda: _kr.newton_blocks_reference(
+            Zf, qk, st.dt, st.W, st.par, st.phys.flags, st._zmap, st._rmap, st._scales, Jd, K),
         "stage_blocks_tangent": lambda: _kr.stage_blocks(*args),
         "block_factor": lambda: (Jd.__setitem__(slice(None), Jd0),
                                  _ks.block_factor(Jd, K, st.W, piv, Gt, Cap, cpiv)),
@@ -470,6 +472,8 @@ def radau_step_breakdown(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
         "stage_residual": lambda: _kr.stage_residual(Z, F, qk, xk, st.dt, st.W, st.par,
                                                      st.phys.flags, st._zmap, st._rmap,
                                                      st._scales),
+        "stage_residual_before": lambda: _kr.stage_residual_reference(
+            Z, F, qk, xk, st.dt, st.W, st.par, st.phys.flags, st._zmap, st._rmap, st._scales),
         "dense_lu_before": lambda: sla.lu_factor(J, check_finite=False),
     }
     us = dict.fromkeys(parts, np.inf)
@@ -478,6 +482,75 @@ def radau_step_breakdown(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
             us[name] = min(us[name], _per_call_us(f, 20 if name == "step" else 60))
     us["newton_iterations"] = float(its)
     return us
+
+
+def radau_newton_stats(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
+                       n: int) -> dict[str, float]:
+    """The Newton iteration of the Radau flow over the orbit (planar, ``n``
+    steps): the compiled stepper's iterations per step, and from a replica of
+    its loop (same predictor choice, the exact matrix at the predictor, kept
+    within the step) the stage residuals evaluated per step and the
+    contraction ``|F_{k+1}| / |F_k|`` of its iterations (median, 90th
+    percentile, over iterations from residuals above 1e-8)."""
+    st = RadauStepper(pl, T / n, p=p)
+    st.reset(phi)
+    st.step(n)
+    its_compiled = float(np.mean(st.iterations))
+    st.reset(phi)
+    s, nz = st.s, st._zmap.size
+    nu = _kt.reduced_counts(st._zmap, st._rmap, st.phys.N)[0]
+    args = (st.dt, st.W, st.par, st.phys.flags, st._zmap, st._rmap, st._scales)
+    nres, its, rates = [], [], []
+    for _ in range(n):
+        qk = st._q.copy()
+        xk = positions(tangents(qk), st.phys.dL)
+        cands = st._predict()
+        res, cnt = np.inf, 0
+        F = np.empty((s, nz))
+        for c in cands:
+            Fc = np.empty((s, nz))
+            rc = _kr.stage_residual(c, Fc, qk, xk, *args)
+            cnt += 1
+            if rc < res:
+                Z, F, res = c.copy(), Fc, rc
+            if res < radau.PREDICTOR_OK:
+                break
+        Jd, K = np.empty((s, nz, nz)), np.empty((s, nz, nu))
+        _kr.newton_blocks(st._physical(Z), qk, st.dt, st.W, st.par, st.phys.flags, st._zmap,
+                          st._rmap, st._scales, Jd, K)
+        piv, cpiv = np.empty((s, nz), dtype=np.int32), np.empty(s * nu, dtype=np.int32)
+        Gt, Cap = np.empty((s, nu, nz)), np.empty((s * nu, s * nu))
+        _ks.block_factor(Jd, K, st.W, piv, Gt, Cap, cpiv)
+        it = 0
+        while res > st.tol and it < 12:
+            dZ = F.reshape(s, nz, 1).copy()
+            _ks.block_solve(Jd, K, st.W, piv, Gt, Cap, cpiv, dZ)
+            Z = Z - dZ[:, :, 0]
+            rn = _kr.stage_residual(Z, F, qk, xk, *args)
+            cnt += 1
+            it += 1
+            if res > 1e-8:
+                rates.append(rn / res)
+            res = rn
+        nres.append(cnt)
+        its.append(it)
+        st._advance(1)
+    return {"newton_iterations_mean": its_compiled, "replica_iterations_mean": float(np.mean(its)),
+            "residuals_per_step": float(np.mean(nres)),
+            "contraction_median": float(np.median(rates)),
+            "contraction_p90": float(np.percentile(rates, 90))}
+
+
+def step_floors(rb: dict[str, float], ns: dict[str, float], floor_us: float) -> dict[str, float]:
+    """A Radau step's parts in floors: the stage residuals it evaluates (the
+    lower bound of any Newton step on these stage equations that checks its
+    residual: at least one evaluation per iteration and one at the
+    predictor), the Newton matrix and its factorisation (once per step), the
+    block solves (once per iteration)."""
+    return {"residual_floors_per_step": ns["residuals_per_step"] * rb["stage_residual"] / floor_us,
+            "matrix_floors_per_step": rb["newton_blocks"] / floor_us,
+            "factor_floors_per_step": rb["block_factor"] / floor_us,
+            "solve_floors_per_step": ns["replica_iterations_mean"] * rb["block_solve"] / floor_us}
 
 
 class RadauPointFlow(RadauFlow):
@@ -622,6 +695,11 @@ def main() -> None:
           f"{rc['cpu_vs_bdf2_T400_dense_lu']:.3f} of BDF2 T/400; end states differ by "
           f"{rc['flow_dense_lu_vs_block_rel']:.1e} (relative)")
     print("Radau step parts, us: " + ", ".join(f"{k} {v:.1f}" for k, v in rb.items()))
+    ns = radau_newton_stats(
+        FixedStepFlow(m, STEPS).symmetries.invariant_subspaces["planar_xz"].reduced_model().base,
+        rc["x"][:-1], np.array([after["p"]]), float(rc["x"][-1]), RADAU_STEPS)
+    ns.update(step_floors(rb, ns, 1e6 * floor_s))
+    print("Radau Newton: " + ", ".join(f"{k} {v:.3g}" for k, v in ns.items()))
     print(f"Radau point: units flow {ru['flow']:.2f}, 3D flow {ru['flow_3d']:.2f}, planar sweep "
           f"{ru['sweep_planar']:.2f}, 3D block sweep {ru['sweep_3d_block']:.2f} replayed "
           f"({ru['sweep_3d_block_fresh']:.2f} fresh, {rad['replays']} replayed); flows per "
@@ -650,6 +728,7 @@ def main() -> None:
         "step_vs_floor_new_integrator_before": round(rc["step_cpu_dense_lu"] / floor_s, 2),
         "radau_block_vs_dense_lu_rel": float(f"{rc['flow_dense_lu_vs_block_rel']:.2e}"),
         "radau_step_us": {k: round(v, 1) for k, v in rb.items()},
+        "radau_newton": {k: float(f"{v:.3g}") for k, v in ns.items()},
         "flows_per_point_radau": round(flows_radau, 2),
         "radau_sweep_3d_block_units": round(ru["sweep_3d_block"], 2),
         "radau_sweep_3d_block_fresh_units": round(ru["sweep_3d_block_fresh"], 2),
@@ -706,6 +785,8 @@ def main_quick() -> None:
     fr = floor_ratio(m, x0, unit)
     floor_s = (unit / STEPS) / fr
     rb = radau_step_breakdown(pl.base, phi, q, T, RADAU_STEPS)
+    ns = radau_newton_stats(pl.base, phi, q, T, RADAU_STEPS)
+    ns.update(step_floors(rb, ns, 1e6 * floor_s))
     rel = np.abs(dense - new).max() / np.abs(dense).max()
     out = {
         "cpu_vs_bdf2_T400": round(min(c_r) / unit, 3),
@@ -719,6 +800,7 @@ def main_quick() -> None:
         "floor_us": round(1e6 * floor_s, 1),
         "bdf2_step_us": round(1e6 * unit / STEPS, 1),
         "radau_step_us": {k: round(v, 1) for k, v in rb.items()},
+        "radau_newton": {k: float(f"{v:.3g}") for k, v in ns.items()},
         "radau_block_vs_dense_lu_rel": float(f"{rel:.2e}"),
     }
     print(json.dumps(out))
