@@ -383,6 +383,36 @@ def elastic_moment_jacobian_cols(
 
 
 @njit(cache=True)
+def _suffix_positions_rows(K: np.ndarray, t: np.ndarray, dL: float, W: np.ndarray,
+                           cmask: np.ndarray) -> None:
+    """:func:`_suffix_positions` on all rows of the compact ``K`` (nr, 3N)
+    into ``W`` (nr, 3(N-1)), row by row (contiguous reads and writes)."""
+    N = t.shape[0]
+    nr = K.shape[0]
+    c0, c1, c2 = cmask[0], cmask[1], cmask[2]
+    for ii in range(nr):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for m in range(N - 1, 0, -1):
+            k0, k1, k2 = K[ii, 3 * m], K[ii, 3 * m + 1], K[ii, 3 * m + 2]
+            s0 = dL * (a0 + 0.5 * k0)
+            s1 = dL * (a1 + 0.5 * k1)
+            s2 = dL * (a2 + 0.5 * k2)
+            a0 += k0
+            a1 += k1
+            a2 += k2
+            t0, t1, t2 = t[m, 0], t[m, 1], t[m, 2]
+            o = 3 * (m - 1)
+            if c0:
+                W[ii, o] += -s1 * t2 + s2 * t1
+            if c1:
+                W[ii, o + 1] += s0 * t2 - s2 * t0
+            if c2:
+                W[ii, o + 2] += -s0 * t1 + s1 * t0
+
+
+@njit(cache=True)
 def velocity_frame_jacobian_rows(
     q: np.ndarray,
     t: np.ndarray,
@@ -432,57 +462,58 @@ def velocity_frame_jacobian_rows(
             if i < 3 * N:
                 for j in range(3 * N):
                     K[ii, j] += KX[i, j]
-    ident = np.arange(nr)
-    _suffix_positions(K, t, dL, W, ident, cmask)
+    _suffix_positions_rows(K, t, dL, W, cmask)
     Da, Db = elastic_moment_jacobian_cols(q, dL, par[P_KB], par[P_KT], cmask)
     fol = flags[F_ACT] == ACT_FOLLOWER
     w = weights(par, N)
     C = np.empty((3, 3))
+    Cs = np.empty((N, 3, 3))
     L = np.empty(3)
-    dF = np.empty((3, 3))
-    dT = np.zeros((3, 3, 3))
+    dF = np.zeros((N, 3, 3))
+    dT = np.zeros((N, 3, 3, 3))  # per moving segment m: torque change of segments m-1, m, m+1
     for m in range(1, N):
         t0, t1, t2 = t[m, 0], t[m, 1], t[m, 2]
         C[0, 0], C[0, 1], C[0, 2] = 0.0, t2, -t1
         C[1, 0], C[1, 1], C[1, 2] = -t2, 0.0, t0
         C[2, 0], C[2, 1], C[2, 2] = t1, -t0, 0.0
+        Cs[m] = C
         ff = -par[P_F] * w[m] if fol else 0.0
         for k in range(3):
             L[k] = Lam[m - 1, k]
             if m < N - 1:
                 L[k] += Lam[m, k]
-        dT[:] = 0.0
         for k in range(3):
             for c in range(3):
-                dF[k, c] = ff * C[k, c]
+                dF[m, k, c] = ff * C[k, c]
         for c in range(3):
-            dT[1, 0, c] -= hdl * (-L[2] * C[1, c] + L[1] * C[2, c])
-            dT[1, 1, c] -= hdl * (L[2] * C[0, c] - L[0] * C[2, c])
-            dT[1, 2, c] -= hdl * (-L[1] * C[0, c] + L[0] * C[1, c])
+            dT[m, 1, 0, c] -= hdl * (-L[2] * C[1, c] + L[1] * C[2, c])
+            dT[m, 1, 1, c] -= hdl * (L[2] * C[0, c] - L[0] * C[2, c])
+            dT[m, 1, 2, c] -= hdl * (-L[1] * C[0, c] + L[0] * C[1, c])
         for k in range(3):
             for c in range(3):
-                dT[0, k, c] += Db[m - 1, k, c]
-                dT[1, k, c] -= Db[m - 1, k, c]
+                dT[m, 0, k, c] += Db[m - 1, k, c]
+                dT[m, 1, k, c] -= Db[m - 1, k, c]
                 if m < N - 1:
-                    dT[1, k, c] += Da[m, k, c]
-                    dT[2, k, c] -= Da[m, k, c]
-        o = 3 * (m - 1)
-        nlo = m - 1
-        nhi = m + 1 if m < N - 1 else m
-        for ii in range(nr):
-            i = rows[ii]
+                    dT[m, 1, k, c] += Da[m, k, c]
+                    dT[m, 2, k, c] -= Da[m, k, c]
+    for ii in range(nr):
+        i = rows[ii]
+        for m in range(1, N):
+            o = 3 * (m - 1)
+            nlo = m - 1
+            nhi = m + 1 if m < N - 1 else m
             for c in range(3):
                 if not cmask[c]:
                     continue
                 s = 0.0
                 if fol:
                     for k in range(3):
-                        s += M[i, 3 * m + k] * dF[k, c]
+                        s += M[i, 3 * m + k] * dF[m, k, c]
                 for n in range(nlo, nhi + 1):
                     for k in range(3):
-                        s += M[i, 3 * N + 3 * n + k] * dT[n - m + 1, k, c]
+                        s += M[i, 3 * N + 3 * n + k] * dT[m, n - m + 1, k, c]
                 W[ii, o + c] += s
                 if squirm and i < 3 * N:
-                    W[ii, o + c] += (Kt[i, 3 * m] * C[0, c] + Kt[i, 3 * m + 1] * C[1, c]
-                                     + Kt[i, 3 * m + 2] * C[2, c])
+                    W[ii, o + c] += (Kt[i, 3 * m] * Cs[m, 0, c] + Kt[i, 3 * m + 1] * Cs[m, 1, c]
+                                     + Kt[i, 3 * m + 2] * Cs[m, 2, c])
     return W

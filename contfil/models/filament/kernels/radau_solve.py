@@ -44,7 +44,15 @@ from numba.np.linalg import _LAPACK
 from .bdf2_residual import frames_at
 from .effects import P_DL
 from .geometry import positions, tangents
-from .radau_step import newton_blocks, stage_blocks, stage_residual
+from .radau_step import (
+    newton_blocks,
+    newton_blocks_prepared,
+    prepare_stages,
+    stage_arrays,
+    stage_blocks,
+    stage_residual,
+    stage_residual_prepared,
+)
 
 #: LAPACK ``dgetrf`` as numba binds it for ``np.linalg.inv`` (kind, m, n, a, lda, ipiv)
 _GETRF = _LAPACK().numba_xxgetrf(types.float64)
@@ -293,12 +301,23 @@ def newton_step(
     res = np.inf
     F = np.empty((s, nz))
     Fc = np.empty((s, nz))
+    # the first candidate's stages are prepared once for its residual and,
+    # if Newton starts there (the rule on smooth orbits), its Newton matrix
+    Zp = np.empty((s, 6 * N))
+    Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms = stage_arrays(s, N)
+    prepared = False
     for t in range(cands.shape[0]):
-        rc = stage_residual(cands[t], Fc, qk, xk, dt, W, par, flags, zmap, rmap, scales)
+        if t == 0:
+            physical(cands[0], scales, zmap, Zp)
+            prepare_stages(Zp, qk, par, flags, Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms)
+            rc = stage_residual_prepared(cands[0], Zp, Fc, xk, dt, W, par, rmap, Xs, Vs, Oms)
+        else:
+            rc = stage_residual(cands[t], Fc, qk, xk, dt, W, par, flags, zmap, rmap, scales)
         if rc < res or res == np.inf:
             Z[:, :] = cands[t]
             F[:, :] = Fc
             res = rc
+            prepared = t == 0
         if res < rules[R_PRED]:
             break
     Jd = np.empty((s, nz, nz))
@@ -320,8 +339,13 @@ def newton_step(
         if its >= max_iter:
             return MAXITER, its, builds, res
         if not have:
-            physical(Z, scales, zmap, Zf)
-            newton_blocks(Zf, qk, dt, W, par, flags, zmap, rmap, scales, Jd, K)
+            if prepared:
+                newton_blocks_prepared(Zp, Qs, Ts, Xs, Fs, Tqs, Mobs, Oms, dt, W, par, flags,
+                                       zmap, rmap, scales, Jd, K)
+                prepared = False
+            else:
+                physical(Z, scales, zmap, Zf)
+                newton_blocks(Zf, qk, dt, W, par, flags, zmap, rmap, scales, Jd, K)
             builds += 1
             if block_factor(Jd, K, W, piv, Gt, Cap, cpiv) != 0:
                 return NONFINITE, its, builds, res

@@ -46,7 +46,7 @@ from .bdf2_tangent import (
     reduced_counts,
     residual_frame_jacobian,
 )
-from .effects import P_A, P_DL, P_ETA, P_KB, P_KT, active_force
+from .effects import P_A, P_DL, P_ETA, P_KB, P_KT, active_force, add_surface_flow
 from .elastic import elastic_torques
 from .forces import segment_loads
 from .frame_jacobian import velocity_frame_jacobian_rows
@@ -427,9 +427,67 @@ def _load_columns_rows(
 
 
 @njit(cache=True)
-def newton_blocks(
+def prepare_stages(Zf: np.ndarray, qk: np.ndarray, par: np.ndarray, flags: np.ndarray,
+                   Qs: np.ndarray, Ts: np.ndarray, Xs: np.ndarray, Fs: np.ndarray,
+                   Tqs: np.ndarray, Mobs: np.ndarray, Vs: np.ndarray, Oms: np.ndarray) -> None:
+    """Per stage at physical unknowns ``Zf`` (s, 6N), in place: frames ``Qs``
+    (s, N, 4), tangents ``Ts``, positions ``Xs``, segment forces ``Fs`` and
+    torques ``Tqs`` (s, N, 3), the dense mobility ``Mobs`` (s, 6N, 6N) and
+    the velocities ``Vs``, ``Oms`` (s, N, 3) as its product (plus the
+    squirmers' surface flow): what both the Newton matrix
+    (:func:`newton_blocks_prepared`) and the stage residual
+    (:func:`stage_residual_prepared`) need at one point."""
+    s = Zf.shape[0]
+    N = qk.shape[0]
+    dL = par[P_DL]
+    R = 3 * N
+    q = np.empty((N, 4))
+    FT = np.empty(6 * N)
+    for i in range(s):
+        zf = Zf[i]
+        frames_at(zf, qk, q)
+        t = tangents(q)
+        X = positions(t, dL)
+        Qs[i] = q
+        Ts[i] = t
+        Xs[i] = X
+        Lam, Fc, Tc = unpack_loads(zf, N)
+        Mob = dense_mobility(X, par, flags)
+        Mobs[i] = Mob
+        TE = elastic_torques(q, dL, par[P_KB], par[P_KT])
+        F, T = segment_loads(t, Lam, Fc, Tc, TE, active_force(par, flags, t), dL)
+        Fs[i] = F
+        Tqs[i] = T
+        for n in range(N):
+            for k in range(3):
+                FT[3 * n + k] = F[n, k]
+                FT[R + 3 * n + k] = T[n, k]
+        V = np.empty((N, 3))
+        for n in range(N):
+            for k in range(3):
+                acc = 0.0
+                acc2 = 0.0
+                r1 = 3 * n + k
+                r2 = R + 3 * n + k
+                for c in range(6 * N):
+                    acc += Mob[r1, c] * FT[c]
+                    acc2 += Mob[r2, c] * FT[c]
+                V[n, k] = acc
+                Oms[i, n, k] = acc2
+        add_surface_flow(par, flags, X, t, V)
+        Vs[i] = V
+
+
+@njit(cache=True)
+def newton_blocks_prepared(
     Zf: np.ndarray,
-    qk: np.ndarray,
+    Qs: np.ndarray,
+    Ts: np.ndarray,
+    Xs: np.ndarray,
+    Fs: np.ndarray,
+    Tqs: np.ndarray,
+    Mobs: np.ndarray,
+    Oms: np.ndarray,
     dt: float,
     W: np.ndarray,
     par: np.ndarray,
@@ -440,22 +498,9 @@ def newton_blocks(
     Jd: np.ndarray,
     K: np.ndarray,
 ) -> None:
-    """``Jd`` (s, nz, nz) and ``K`` (s, nz, nu) of :func:`stage_blocks` in
-    place, without what only the tangent needs (``dF/dth^k``, ``dF/ddt``,
-    ``dF/ds``): the Newton matrix of a step.
-
-    The same exact derivative as :func:`stage_blocks` (exact load columns;
-    increment columns ``G dexp(u) + E``, ``G`` the exact frame derivative,
-    ``E`` the explicit ``u`` of the orientation rows), assembled with less
-    work per stage: the segment loads once per stage, ``Omega`` as the dense
-    mobility's product, the frame derivative on the selected rows and
-    rotation components only
-    (:func:`.frame_jacobian.velocity_frame_jacobian_rows`), the load columns
-    by mobility rows. Equal to :func:`newton_blocks_reference` to round-off
-    (tested).
-    """
+    """:func:`newton_blocks` from the stages prepared by :func:`prepare_stages`."""
     s = Zf.shape[0]
-    N = qk.shape[0]
+    N = Qs.shape[1]
     nz = zmap.shape[0]
     nu, npos = reduced_counts(zmap, rmap, N)
     dL = par[P_DL]
@@ -466,38 +511,19 @@ def newton_blocks(
     cmask = np.zeros(3, dtype=np.bool_)
     for j in range(nu):
         cmask[zmap[j] % 3] = True
-    q = np.empty((N, 4))
-    FT = np.empty(6 * N)
-    Om = np.empty((N, 3))
     G = np.empty((nz, nu))
     for i in range(s):
         zf = Zf[i]
         gdt = dt / W[i, i]
-        frames_at(zf, qk, q)
-        t = tangents(q)
-        X = positions(t, dL)
-        Lam, Fc, Tc = unpack_loads(zf, N)
-        Mob = dense_mobility(X, par, flags)
+        q, t, X, Mob = Qs[i], Ts[i], Xs[i], Mobs[i]
+        Lam, _, _ = unpack_loads(zf, N)
         B, A, _ = _segment_blocks(zf, N)
-        TE = elastic_torques(q, dL, par[P_KB], par[P_KT])
-        F, T = segment_loads(t, Lam, Fc, Tc, TE, active_force(par, flags, t), dL)
-        for n in range(N):
-            for k in range(3):
-                FT[3 * n + k] = F[n, k]
-                FT[R + 3 * n + k] = T[n, k]
-        for n in range(N):
-            for k in range(3):
-                acc = 0.0
-                row = R + 3 * n + k
-                for c in range(6 * N):
-                    acc += Mob[row, c] * FT[c]
-                Om[n, k] = acc
         Jl = _load_columns_rows(t, gdt, par, zmap, rmap, scales[i], nu, Mob, A, rinv)
         for a in range(nz):
             for b in range(nz - nu):
                 Jd[i, a, nu + b] = Jl[a, b]
-        Wc = velocity_frame_jacobian_rows(q, t, X, Lam, F, T, par, flags, Mob, rmap, rinv,
-                                          cmask)
+        Wc = velocity_frame_jacobian_rows(q, t, X, Lam, Fs[i], Tqs[i], par, flags, Mob, rmap,
+                                          rinv, cmask)
         Arm = arm_matrix(t, zmap, rmap, nu, npos, dL)
         for a in range(nz):
             r = rmap[a]
@@ -523,7 +549,7 @@ def newton_blocks(
         for a in range(nz):
             for b in range(nu):
                 Jd[i, a, b] = Ju[a, b]
-        add_orientation_u(Jd[i], zf, Om, zmap, rinv, nu, gdt)
+        add_orientation_u(Jd[i], zf, Oms[i], zmap, rinv, nu, gdt)
         AB = Arm @ Br
         for a in range(nz):
             for b in range(nu):
@@ -532,6 +558,116 @@ def newton_blocks(
             a = rinv[R + 3 * (zmap[b] // 3 + 1) + zmap[b] % 3]
             if a >= 0:
                 K[i, a, b] += 1.0
+
+
+@njit(cache=True)
+def stage_arrays(s: int, N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                          np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Work arrays of :func:`prepare_stages` ``(Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms)``."""
+    return (np.empty((s, N, 4)), np.empty((s, N, 3)), np.empty((s, N, 3)), np.empty((s, N, 3)),
+            np.empty((s, N, 3)), np.empty((s, 6 * N, 6 * N)), np.empty((s, N, 3)),
+            np.empty((s, N, 3)))
+
+
+@njit(cache=True)
+def newton_blocks(
+    Zf: np.ndarray,
+    qk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+    Jd: np.ndarray,
+    K: np.ndarray,
+) -> None:
+    """``Jd`` (s, nz, nz) and ``K`` (s, nz, nu) of :func:`stage_blocks` in
+    place, without what only the tangent needs (``dF/dth^k``, ``dF/ddt``,
+    ``dF/ds``): the Newton matrix of a step.
+
+    The same exact derivative as :func:`stage_blocks` (exact load columns;
+    increment columns ``G dexp(u) + E``, ``G`` the exact frame derivative,
+    ``E`` the explicit ``u`` of the orientation rows), assembled with less
+    work per stage: the segment loads once per stage, ``Omega`` as the dense
+    mobility's product (:func:`prepare_stages`), the frame derivative on the
+    selected rows and rotation components only
+    (:func:`.frame_jacobian.velocity_frame_jacobian_rows`), the load columns
+    by mobility rows. Equal to :func:`newton_blocks_reference` to round-off
+    (tested).
+    """
+    s = Zf.shape[0]
+    N = qk.shape[0]
+    Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms = stage_arrays(s, N)
+    prepare_stages(Zf, qk, par, flags, Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms)
+    newton_blocks_prepared(Zf, Qs, Ts, Xs, Fs, Tqs, Mobs, Oms, dt, W, par, flags, zmap, rmap,
+                           scales, Jd, K)
+
+
+@njit(cache=True)
+def stage_residual_prepared(
+    Z: np.ndarray,
+    Zf: np.ndarray,
+    F: np.ndarray,
+    xk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    rmap: np.ndarray,
+    Xs: np.ndarray,
+    Vs: np.ndarray,
+    Oms: np.ndarray,
+) -> float:
+    """:func:`stage_residual` from the stages prepared by :func:`prepare_stages`
+    at ``Zf`` (the physical form of ``Z``): the same rows, with the velocities
+    the dense mobility's product instead of its matrix-free application
+    (equal to round-off). Returns the infinity norm."""
+    s = Z.shape[0]
+    N = Xs.shape[1]
+    dL = par[P_DL]
+    rfull = np.empty(6 * N)
+    xh = np.empty((N, 3))
+    uh = np.zeros(3 * (N - 1))
+    u = np.zeros(3)
+    w = np.empty(3)
+    res = 0.0
+    for i in range(s):
+        for n in range(N):
+            for k in range(3):
+                xh[n, k] = xk[n, k]
+        for m in range(3 * (N - 1)):
+            uh[m] = 0.0
+        for j in range(s):
+            if j == i:
+                continue
+            wj = W[i, j] / W[i, i]
+            for n in range(N):
+                for k in range(3):
+                    xh[n, k] -= wj * (Xs[j, n, k] - xk[n, k])
+            for m in range(3 * (N - 1)):
+                uh[m] -= wj * Zf[j, m]
+        zf = Zf[i]
+        gdt = (1.0 / W[i, i]) * dt
+        for n in range(N):
+            for k in range(3):
+                rfull[3 * n + k] = (Xs[i, n, k] - xh[n, k] - gdt * Vs[i, n, k]) / dL
+            if n == 0:
+                for k in range(3):
+                    rfull[3 * N + k] = -gdt * Oms[i, 0, k]
+            else:
+                for k in range(3):
+                    u[k] = zf[3 * (n - 1) + k]
+                    w[k] = Oms[i, n, k]
+                di = dexp_inv(u, w)
+                for k in range(3):
+                    rfull[3 * N + 3 * n + k] = u[k] - uh[3 * (n - 1) + k] - gdt * di[k]
+        for m in range(F.shape[1]):
+            F[i, m] = rfull[rmap[m]]
+            a = abs(F[i, m])
+            if not a <= res:  # NaN propagates
+                res = a
+    return res
 
 
 @njit(cache=True)
