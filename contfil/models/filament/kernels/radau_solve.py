@@ -176,12 +176,20 @@ def coupling_solve(Gt: np.ndarray, Cap: np.ndarray, cpiv: np.ndarray,
     s, nu, nz = Gt.shape
     k = B.shape[2]
     dU = np.zeros((s * nu, k))
-    for i in range(s):
-        for a in range(nu):
-            for r in range(nz):
-                g = Gt[i, a, r]
-                for j in range(k):
-                    dU[i * nu + a, j] += g * B[i, r, j]
+    if k == 1:  # a Newton iteration: dot products along the rows of Gt
+        for i in range(s):
+            for a in range(nu):
+                acc = 0.0
+                for r in range(nz):
+                    acc += Gt[i, a, r] * B[i, r, 0]
+                dU[i * nu + a, 0] = acc
+    else:
+        for i in range(s):
+            for a in range(nu):
+                for r in range(nz):
+                    g = Gt[i, a, r]
+                    for j in range(k):
+                        dU[i * nu + a, j] += g * B[i, r, j]
     lu_solve_t(Cap, cpiv, dU)
     return dU
 
