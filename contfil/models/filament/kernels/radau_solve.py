@@ -205,15 +205,23 @@ def block_solve(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray, G
     R = np.empty((nz, k))
     dU = coupling_solve(Gt, Cap, cpiv, B)
     KU = np.empty((s, nz, k))
-    for m in range(s):
-        for r in range(nz):
-            for j in range(k):
-                KU[m, r, j] = 0.0
-            for b in range(nu):
-                kv = K[m, r, b]
-                if kv != 0.0:
-                    for j in range(k):
-                        KU[m, r, j] += kv * dU[m * nu + b, j]
+    if k == 1:  # a Newton iteration: dot products along the rows of K
+        for m in range(s):
+            for r in range(nz):
+                acc = 0.0
+                for b in range(nu):
+                    acc += K[m, r, b] * dU[m * nu + b, 0]
+                KU[m, r, 0] = acc
+    else:
+        for m in range(s):
+            for r in range(nz):
+                for j in range(k):
+                    KU[m, r, j] = 0.0
+                for b in range(nu):
+                    kv = K[m, r, b]
+                    if kv != 0.0:
+                        for j in range(k):
+                            KU[m, r, j] += kv * dU[m * nu + b, j]
     for i in range(s):
         for r in range(nz):
             for j in range(k):
