@@ -195,9 +195,6 @@ def rpy_apply_jacobian_rows(
     h = np.empty(3)
     v = np.empty(3)
     w = np.empty(3)
-    av = np.empty(3)
-    bv = np.empty(3)
-    S = np.empty((3, 3))
     for i in range(N):
         for j in range(i + 1, N):
             h[0] = X[i, 0] - X[j, 0]
@@ -235,27 +232,30 @@ def rpy_apply_jacobian_rows(
                         w[k] = F[seg, k]
                 sv = h[0] * v[0] + h[1] * v[1] + h[2] * v[2]
                 cI = B_ * sv * ir
-                cHH = dB_ * sv - 2.0 * cI
+                cHH = dB_ * sv - 2.0 * B_ * sv * ir
                 cHV = B_ * ir
                 es = sg * e
                 fs = sg * f
                 # d_km = av_k h_m + bv_k v_m + S_km: the derivative of A v + B rh (rh.v)
-                # and of sg c w x rh ((w x rh)_k = x_k; S = cI I + sg (c/r) [w]x)
-                av[0] = dA_ * v[0] + cHH * h[0] + es * (w[1] * h[2] - w[2] * h[1])
-                av[1] = dA_ * v[1] + cHH * h[1] + es * (w[2] * h[0] - w[0] * h[2])
-                av[2] = dA_ * v[2] + cHH * h[2] + es * (w[0] * h[1] - w[1] * h[0])
-                for k in range(3):
-                    bv[k] = cHV * h[k]
-                S[0, 0], S[0, 1], S[0, 2] = cI, -fs * w[2], fs * w[1]
-                S[1, 0], S[1, 1], S[1, 2] = fs * w[2], cI, -fs * w[0]
-                S[2, 0], S[2, 1], S[2, 2] = -fs * w[1], fs * w[0], cI
+                # and of sg c w x rh, S = cI I + sg (c/r) [w]x; the active rows only
                 for k in range(3):
                     rr = rinv[row + k]
                     if rr < 0:
                         continue
+                    k1 = 0 if k == 2 else k + 1
+                    k2 = 2 if k == 0 else k - 1
+                    xk = w[k1] * h[k2] - w[k2] * h[k1]  # (w x rh)_k
+                    avk = dA_ * v[k] + cHH * h[k] + es * xk
+                    bvk = cHV * h[k]
                     for p in range(nx):
                         m = xs[p]
-                        d = av[k] * h[m] + bv[k] * v[m] + S[k, m]
+                        d = avk * h[m] + bvk * v[m]
+                        if m == k:
+                            d += cI
+                        elif m == k1:
+                            d -= fs * w[k2]  # [w]x[k, k+1] = -w[k+2]
+                        else:
+                            d += fs * w[k1]  # [w]x[k, k+2] = w[k+1]
                         K[rr, ci + m] += d
                         K[rr, cj + m] -= d
     return K
