@@ -65,6 +65,14 @@ Run (single-threaded BLAS; CPU times of this process)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py    (~10 min CPU)
     OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py --quick   (step costs only, ~20 s)
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=<checkout> python benchmarks/orbit_cost.py --step-ratio
+
+``--step-ratio`` times the Radau step against the floor, alternately in one
+process, with the contfil of ``PYTHONPATH`` (two checkouts, one script). Since
+session 11 the Radau ratios of the full and the quick run use the floor
+measured interleaved with the flows (``floor_us``; the separately measured
+floor of the BDF2 ratio is ``floor_us_separate``), and ``radau_newton`` gives
+the Newton iterations, contraction and the step's parts in floors.
 
 The Radau rows also time the previous Radau solver side by side
 (``*_before``: Newton in Python on the dense stage Jacobian, one scipy LU of
@@ -80,8 +88,10 @@ import os
 import sys
 from pathlib import Path
 
-# this checkout's contfil, not an installed one
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# this checkout's contfil, not an installed one (``--step-ratio``: the one
+# on PYTHONPATH, to time another checkout with the same script)
+if "--step-ratio" not in sys.argv[1:]:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
@@ -826,8 +836,39 @@ def main_quick() -> None:
     print(json.dumps(out))
 
 
+def main_step_ratio() -> None:
+    """``--step-ratio``: the Radau step at 80 steps per period over the floor,
+    the two timed alternately 8 times in one process (least of each), with the
+    contfil on PYTHONPATH (so two checkouts can be compared by the same
+    script, alternating processes); ends with one JSON line."""
+    import contfil
+    m = FilamentModel(ROOT / "branches" / "tip_sf.toml")
+    x0 = start_orbit(m)
+    pb = problem(m, P0, cls=RadauFlow, steps=RADAU_STEPS, jacobian_update="exact")
+    pb.set_reference(x0[:-1], P0)
+    x, info = newton_dense(lambda z: pb.residual(z, P0), lambda z: pb.jacobian(z, P0), x0,
+                           tol=1e-11, max_iter=12)
+    if not info.converged:
+        raise SystemExit("set-up: the Radau orbit did not converge")
+    pl = FixedStepFlow(m, STEPS).symmetries.invariant_subspaces["planar_xz"].reduced_model()
+    rf = RadauFlow(pl.base, RADAU_STEPS)
+    q = np.array([P0])
+    phi, T = x[:-1], float(x[-1])
+    rf.flow(phi, q, T)
+    floor, c_f, c_r = floor_batch(m, x0), [], []
+    for _ in range(8):
+        c_f.append(cpu(floor, 1) / 200)
+        c_r.append(cpu(lambda: rf.flow(phi, q, T), 1) / RADAU_STEPS)
+    print(json.dumps({"contfil": str(Path(contfil.__file__).parent),
+                      "step_us": round(1e6 * min(c_r), 1), "floor_us": round(1e6 * min(c_f), 1),
+                      "step_vs_floor_new_integrator": round(min(c_r) / min(c_f), 2),
+                      "stage_vs_floor_new_integrator": round(min(c_r) / min(c_f) / 3, 2)}))
+
+
 if __name__ == "__main__":
-    if "--quick" in sys.argv[1:]:
+    if "--step-ratio" in sys.argv[1:]:
+        main_step_ratio()
+    elif "--quick" in sys.argv[1:]:
         main_quick()
     else:
         main()
