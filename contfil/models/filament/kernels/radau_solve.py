@@ -139,7 +139,6 @@ def block_factor(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
         for b in range(s * nu):
             Cap[a, b] = 0.0
         Cap[a, a] = 1.0
-    Kr = np.empty((nz, (s - 1) * nu))
     for i in range(s):
         # getrf of J_i^T and, in the same LAPACK call, Gt_i = (J_i^{-T} P^T)^T
         # = P J_i^{-1} (its Fortran view is the right-hand side P^T)
@@ -150,19 +149,14 @@ def block_factor(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray,
             Gi[a, a] = 1.0
         if _GESV(_KIND, nz, nu, Jd[i].ctypes, nz, piv[i].ctypes, Gi.ctypes, nz) != 0:
             return 1 + i
-        # S_ij = P J_i^{-1} K_j for all j != i in one product
-        for jj in range(s - 1):
-            j = jj if jj < i else jj + 1
-            for r in range(nz):
-                for b in range(nu):
-                    Kr[r, jj * nu + b] = K[j, r, b]
-        S = np.dot(Gi, Kr)
-        for jj in range(s - 1):
-            j = jj if jj < i else jj + 1
+        for j in range(s):
+            if j == i:
+                continue
             w = W[i, j] / W[i, i]
+            S = np.dot(Gi, K[j])
             for a in range(nu):
                 for b in range(nu):
-                    Cap[i * nu + a, j * nu + b] += w * S[a, jj * nu + b]
+                    Cap[i * nu + a, j * nu + b] += w * S[a, b]
     if lu_factor_t(Cap, cpiv) != 0:
         return s + 1
     return 0
@@ -176,20 +170,30 @@ def coupling_solve(Gt: np.ndarray, Cap: np.ndarray, cpiv: np.ndarray,
     s, nu, nz = Gt.shape
     k = B.shape[2]
     dU = np.zeros((s * nu, k))
-    if k == 1:  # a Newton iteration: dot products along the rows of Gt
-        for i in range(s):
-            for a in range(nu):
-                acc = 0.0
-                for r in range(nz):
-                    acc += Gt[i, a, r] * B[i, r, 0]
-                dU[i * nu + a, 0] = acc
-    else:
-        for i in range(s):
-            for a in range(nu):
-                for r in range(nz):
-                    g = Gt[i, a, r]
-                    for j in range(k):
-                        dU[i * nu + a, j] += g * B[i, r, j]
+    for i in range(s):
+        for a in range(nu):
+            for r in range(nz):
+                g = Gt[i, a, r]
+                for j in range(k):
+                    dU[i * nu + a, j] += g * B[i, r, j]
+    lu_solve_t(Cap, cpiv, dU)
+    return dU
+
+
+@njit(cache=True, fastmath=_FAST)
+def _coupling_solve_1(Gt: np.ndarray, Cap: np.ndarray, cpiv: np.ndarray,
+                      B: np.ndarray) -> np.ndarray:
+    """:func:`coupling_solve` of one right-hand side (a Newton iteration), by
+    dot products along the rows of ``Gt`` (the tangent keeps
+    :func:`coupling_solve`)."""
+    s, nu, nz = Gt.shape
+    dU = np.empty((s * nu, 1))
+    for i in range(s):
+        for a in range(nu):
+            acc = 0.0
+            for r in range(nz):
+                acc += Gt[i, a, r] * B[i, r, 0]
+            dU[i * nu + a, 0] = acc
     lu_solve_t(Cap, cpiv, dU)
     return dU
 
@@ -203,7 +207,7 @@ def block_solve(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray, G
     nu = K.shape[2]
     k = B.shape[2]
     R = np.empty((nz, k))
-    dU = coupling_solve(Gt, Cap, cpiv, B)
+    dU = _coupling_solve_1(Gt, Cap, cpiv, B) if k == 1 else coupling_solve(Gt, Cap, cpiv, B)
     KU = np.empty((s, nz, k))
     if k == 1:  # a Newton iteration: dot products along the rows of K
         for m in range(s):
