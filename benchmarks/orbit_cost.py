@@ -92,6 +92,8 @@ from pathlib import Path
 # on PYTHONPATH, to time another checkout with the same script)
 if "--step-ratio" not in sys.argv[1:]:
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+else:  # bind contfil before work_precision puts this checkout first
+    import contfil  # noqa: F401
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
