@@ -65,6 +65,14 @@ Run (single-threaded BLAS; CPU times of this process)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py    (~10 min CPU)
     OPENBLAS_NUM_THREADS=1 python benchmarks/orbit_cost.py --quick   (step costs only, ~20 s)
+    OPENBLAS_NUM_THREADS=1 PYTHONPATH=<checkout> python benchmarks/orbit_cost.py --step-ratio
+
+``--step-ratio`` times the Radau step against the floor, alternately in one
+process, with the contfil of ``PYTHONPATH`` (two checkouts, one script). Since
+session 11 the Radau ratios of the full and the quick run use the floor
+measured interleaved with the flows (``floor_us``; the separately measured
+floor of the BDF2 ratio is ``floor_us_separate``), and ``radau_newton`` gives
+the Newton iterations, contraction and the step's parts in floors.
 
 The Radau rows also time the previous Radau solver side by side
 (``*_before``: Newton in Python on the dense stage Jacobian, one scipy LU of
@@ -80,8 +88,12 @@ import os
 import sys
 from pathlib import Path
 
-# this checkout's contfil, not an installed one
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+# this checkout's contfil, not an installed one (``--step-ratio``: the one
+# on PYTHONPATH, to time another checkout with the same script)
+if "--step-ratio" not in sys.argv[1:]:
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+else:  # bind contfil before work_precision puts this checkout first
+    import contfil  # noqa: F401
 for _v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_v, "1")
 
@@ -280,8 +292,9 @@ def radau_units(m: FilamentModel, x: np.ndarray, p: float, unit_cpu: float) -> d
     }
 
 
-def floor_ratio(m: FilamentModel, x: np.ndarray, unit_cpu: float) -> float:
-    """BDF2 step CPU over the floor: RPY assembly + 63x63 LU + 120x120 matvec."""
+def floor_batch(m: FilamentModel, x: np.ndarray) -> Any:
+    """A batch of 200 floors (RPY assembly + 63x63 LU + 120x120 matvec) at the
+    orbit point ``x``, as a callable."""
     U = embed_planar(x[:-1])
     _, _, X = configuration(U, m.dL)
     sc = m.scene
@@ -294,7 +307,12 @@ def floor_ratio(m: FilamentModel, x: np.ndarray, unit_cpu: float) -> float:
             sla.lu_factor(A, check_finite=False)
             Mb @ v
 
-    return (unit_cpu / STEPS) / (cpu(floor) / 200)
+    return floor
+
+
+def floor_ratio(m: FilamentModel, x: np.ndarray, unit_cpu: float) -> float:
+    """BDF2 step CPU over the floor: RPY assembly + 63x63 LU + 120x120 matvec."""
+    return (unit_cpu / STEPS) / (cpu(floor_batch(m, x)) / 200)
 
 
 def _per_call_us(f: Any, n: int = 200, batches: int = 3) -> float:
@@ -463,6 +481,8 @@ def radau_step_breakdown(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
                                         Zo),
         "newton_blocks": lambda: _kr.newton_blocks(Zf, qk, st.dt, st.W, st.par, st.phys.flags,
                                                    st._zmap, st._rmap, st._scales, Jd, K),
+        "newton_blocks_before": lambda: _kr.newton_blocks_reference(
+            Zf, qk, st.dt, st.W, st.par, st.phys.flags, st._zmap, st._rmap, st._scales, Jd, K),
         "stage_blocks_tangent": lambda: _kr.stage_blocks(*args),
         "block_factor": lambda: (Jd.__setitem__(slice(None), Jd0),
                                  _ks.block_factor(Jd, K, st.W, piv, Gt, Cap, cpiv)),
@@ -470,6 +490,8 @@ def radau_step_breakdown(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
         "stage_residual": lambda: _kr.stage_residual(Z, F, qk, xk, st.dt, st.W, st.par,
                                                      st.phys.flags, st._zmap, st._rmap,
                                                      st._scales),
+        "stage_residual_before": lambda: _kr.stage_residual_reference(
+            Z, F, qk, xk, st.dt, st.W, st.par, st.phys.flags, st._zmap, st._rmap, st._scales),
         "dense_lu_before": lambda: sla.lu_factor(J, check_finite=False),
     }
     us = dict.fromkeys(parts, np.inf)
@@ -478,6 +500,75 @@ def radau_step_breakdown(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
             us[name] = min(us[name], _per_call_us(f, 20 if name == "step" else 60))
     us["newton_iterations"] = float(its)
     return us
+
+
+def radau_newton_stats(pl: Any, phi: np.ndarray, p: np.ndarray, T: float,
+                       n: int) -> dict[str, float]:
+    """The Newton iteration of the Radau flow over the orbit (planar, ``n``
+    steps): the compiled stepper's iterations per step, and from a replica of
+    its loop (same predictor choice, the exact matrix at the predictor, kept
+    within the step) the stage residuals evaluated per step and the
+    contraction ``|F_{k+1}| / |F_k|`` of its iterations (median, 90th
+    percentile, over iterations from residuals above 1e-8)."""
+    st = RadauStepper(pl, T / n, p=p)
+    st.reset(phi)
+    st.step(n)
+    its_compiled = float(np.mean(st.iterations))
+    st.reset(phi)
+    s, nz = st.s, st._zmap.size
+    nu = _kt.reduced_counts(st._zmap, st._rmap, st.phys.N)[0]
+    args = (st.dt, st.W, st.par, st.phys.flags, st._zmap, st._rmap, st._scales)
+    nres, its, rates = [], [], []
+    for _ in range(n):
+        qk = st._q.copy()
+        xk = positions(tangents(qk), st.phys.dL)
+        cands = st._predict()
+        res, cnt = np.inf, 0
+        F = np.empty((s, nz))
+        for c in cands:
+            Fc = np.empty((s, nz))
+            rc = _kr.stage_residual(c, Fc, qk, xk, *args)
+            cnt += 1
+            if rc < res:
+                Z, F, res = c.copy(), Fc, rc
+            if res < radau.PREDICTOR_OK:
+                break
+        Jd, K = np.empty((s, nz, nz)), np.empty((s, nz, nu))
+        _kr.newton_blocks(st._physical(Z), qk, st.dt, st.W, st.par, st.phys.flags, st._zmap,
+                          st._rmap, st._scales, Jd, K)
+        piv, cpiv = np.empty((s, nz), dtype=np.int32), np.empty(s * nu, dtype=np.int32)
+        Gt, Cap = np.empty((s, nu, nz)), np.empty((s * nu, s * nu))
+        _ks.block_factor(Jd, K, st.W, piv, Gt, Cap, cpiv)
+        it = 0
+        while res > st.tol and it < 12:
+            dZ = F.reshape(s, nz, 1).copy()
+            _ks.block_solve(Jd, K, st.W, piv, Gt, Cap, cpiv, dZ)
+            Z = Z - dZ[:, :, 0]
+            rn = _kr.stage_residual(Z, F, qk, xk, *args)
+            cnt += 1
+            it += 1
+            if res > 1e-8:
+                rates.append(rn / res)
+            res = rn
+        nres.append(cnt)
+        its.append(it)
+        st._advance(1)
+    return {"newton_iterations_mean": its_compiled, "replica_iterations_mean": float(np.mean(its)),
+            "residuals_per_step": float(np.mean(nres)),
+            "contraction_median": float(np.median(rates)),
+            "contraction_p90": float(np.percentile(rates, 90))}
+
+
+def step_floors(rb: dict[str, float], ns: dict[str, float], floor_us: float) -> dict[str, float]:
+    """A Radau step's parts in floors: the stage residuals it evaluates (the
+    lower bound of any Newton step on these stage equations that checks its
+    residual: at least one evaluation per iteration and one at the
+    predictor), the Newton matrix and its factorisation (once per step), the
+    block solves (once per iteration)."""
+    return {"residual_floors_per_step": ns["residuals_per_step"] * rb["stage_residual"] / floor_us,
+            "matrix_floors_per_step": rb["newton_blocks"] / floor_us,
+            "factor_floors_per_step": rb["block_factor"] / floor_us,
+            "solve_floors_per_step": ns["replica_iterations_mean"] * rb["block_solve"] / floor_us}
 
 
 class RadauPointFlow(RadauFlow):
@@ -524,7 +615,9 @@ def radau_costs(m: FilamentModel, x: np.ndarray, p: float, x_start: np.ndarray,
     c_r, c_b, s_r, s_b, c_d = [], [], [], [], []
     dense = dense_radau_flow(pl.base, phi, q, Tp, n1)
     new = rf.flow(phi, q, Tp)
-    for _ in range(5):
+    floor, c_f = floor_batch(m, x), []
+    for _ in range(5):  # the floor interleaved with the flows (the same load)
+        c_f.append(cpu(floor, 1) / 200)
         c_r.append(cpu(lambda: rf.flow(phi, q, Tp), 1))
         c_b.append(cpu(lambda: pl.flow(phi, q, Tp), 1))
         c_d.append(cpu(lambda: dense_radau_flow(pl.base, phi, q, Tp, n1), 1))
@@ -540,7 +633,7 @@ def radau_costs(m: FilamentModel, x: np.ndarray, p: float, x_start: np.ndarray,
             "solve_cpu": min(s_r), "bdf2_solve_cpu": min(s_b),
             "solve_cpu_vs_bdf2_T400": min(s_r) / min(s_b), "step_cpu": step_r,
             "flow_cpu_dense_lu": min(c_d), "cpu_vs_bdf2_T400_dense_lu": min(c_d) / min(c_b),
-            "step_cpu_dense_lu": min(c_d) / n1,
+            "step_cpu_dense_lu": min(c_d) / n1, "floor_cpu": min(c_f),
             "flow_dense_lu_vs_block_rel": float(np.abs(dense - new).max() / np.abs(dense).max())}
 
 
@@ -598,8 +691,11 @@ def main() -> None:
           f"{pe['mu_ref'].real:.8f} (+- {pe['mu_ref_error_estimate']:.1e}); error of T/400 = "
           f"{pe['mu_error']:.2e}")
     fr = floor_ratio(m, after["x"], uc["unit_cpu"])
-    floor_s = (uc["unit_cpu"] / STEPS) / fr
+    floor_sep = (uc["unit_cpu"] / STEPS) / fr
     rc = radau_costs(m, after["x"], after["p"], x0)
+    # the Radau step against the floor measured interleaved with its flows
+    # (session 11; the separate floor of the BDF2 ratio is kept as it was)
+    floor_s = rc["floor_cpu"]
     # the Radau point's flows and sweeps in the BDF2 unit (measured here)
     ru = radau_units(m, rad["x"], rad["p"], uc["unit_cpu"])
     rep = min(rad["replays"], rad["sweeps_3d"])
@@ -622,6 +718,11 @@ def main() -> None:
           f"{rc['cpu_vs_bdf2_T400_dense_lu']:.3f} of BDF2 T/400; end states differ by "
           f"{rc['flow_dense_lu_vs_block_rel']:.1e} (relative)")
     print("Radau step parts, us: " + ", ".join(f"{k} {v:.1f}" for k, v in rb.items()))
+    ns = radau_newton_stats(
+        FixedStepFlow(m, STEPS).symmetries.invariant_subspaces["planar_xz"].reduced_model().base,
+        rc["x"][:-1], np.array([after["p"]]), float(rc["x"][-1]), RADAU_STEPS)
+    ns.update(step_floors(rb, ns, 1e6 * floor_s))
+    print("Radau Newton: " + ", ".join(f"{k} {v:.3g}" for k, v in ns.items()))
     print(f"Radau point: units flow {ru['flow']:.2f}, 3D flow {ru['flow_3d']:.2f}, planar sweep "
           f"{ru['sweep_planar']:.2f}, 3D block sweep {ru['sweep_3d_block']:.2f} replayed "
           f"({ru['sweep_3d_block_fresh']:.2f} fresh, {rad['replays']} replayed); flows per "
@@ -648,8 +749,12 @@ def main() -> None:
         "stage_vs_floor_new_integrator": round(rc["step_cpu"] / floor_s / 3, 2),
         "cpu_vs_bdf2_T400_before": round(rc["cpu_vs_bdf2_T400_dense_lu"], 3),
         "step_vs_floor_new_integrator_before": round(rc["step_cpu_dense_lu"] / floor_s, 2),
+        "floor_us": round(1e6 * floor_s, 1),
+        "floor_us_separate": round(1e6 * floor_sep, 1),
+        "step_vs_floor_new_integrator_separate_floor": round(rc["step_cpu"] / floor_sep, 2),
         "radau_block_vs_dense_lu_rel": float(f"{rc['flow_dense_lu_vs_block_rel']:.2e}"),
         "radau_step_us": {k: round(v, 1) for k, v in rb.items()},
+        "radau_newton": {k: float(f"{v:.3g}") for k, v in ns.items()},
         "flows_per_point_radau": round(flows_radau, 2),
         "radau_sweep_3d_block_units": round(ru["sweep_3d_block"], 2),
         "radau_sweep_3d_block_fresh_units": round(ru["sweep_3d_block_fresh"], 2),
@@ -695,7 +800,9 @@ def main_quick() -> None:
     new = rf.flow(phi, q, T)
     c_r, c_b, c_d, c_r3, c_d3 = [], [], [], [], []
     U = embed_planar(phi)  # the same orbit in the 3D model (360 stage unknowns)
-    for _ in range(5):
+    floor, c_f = floor_batch(m, x0), []
+    for _ in range(5):  # the floor interleaved with the flows (the same load)
+        c_f.append(cpu(floor, 1) / 200)
         c_r.append(cpu(lambda: rf.flow(phi, q, T), 1))
         c_b.append(cpu(lambda: pl.flow(phi, q, T), 1))
         c_d.append(cpu(lambda: dense_radau_flow(pl.base, phi, q, T, RADAU_STEPS), 1))
@@ -703,9 +810,12 @@ def main_quick() -> None:
         c_r3.append(cpu(lambda: RadauFlow(m, RADAU_STEPS).flow(U, q, T), 1))
         c_d3.append(cpu(lambda: dense_radau_flow(m, U, q, T, RADAU_STEPS), 1))
     unit = min(c_b)
-    fr = floor_ratio(m, x0, unit)
-    floor_s = (unit / STEPS) / fr
+    floor_s = min(c_f)
+    fr = (unit / STEPS) / floor_s
+    floor_sep = (unit / STEPS) / floor_ratio(m, x0, unit)
     rb = radau_step_breakdown(pl.base, phi, q, T, RADAU_STEPS)
+    ns = radau_newton_stats(pl.base, phi, q, T, RADAU_STEPS)
+    ns.update(step_floors(rb, ns, 1e6 * floor_s))
     rel = np.abs(dense - new).max() / np.abs(dense).max()
     out = {
         "cpu_vs_bdf2_T400": round(min(c_r) / unit, 3),
@@ -717,15 +827,50 @@ def main_quick() -> None:
         "radau_flow_3d_units": round(min(c_r3) / unit, 2),
         "radau_flow_3d_units_before": round(min(c_d3) / unit, 2),
         "floor_us": round(1e6 * floor_s, 1),
+        "floor_us_separate": round(1e6 * floor_sep, 1),
+        "step_vs_floor_new_integrator_separate_floor": round(min(c_r) / RADAU_STEPS / floor_sep,
+                                                             2),
         "bdf2_step_us": round(1e6 * unit / STEPS, 1),
         "radau_step_us": {k: round(v, 1) for k, v in rb.items()},
+        "radau_newton": {k: float(f"{v:.3g}") for k, v in ns.items()},
         "radau_block_vs_dense_lu_rel": float(f"{rel:.2e}"),
     }
     print(json.dumps(out))
 
 
+def main_step_ratio() -> None:
+    """``--step-ratio``: the Radau step at 80 steps per period over the floor,
+    the two timed alternately 8 times in one process (least of each), with the
+    contfil on PYTHONPATH (so two checkouts can be compared by the same
+    script, alternating processes); ends with one JSON line."""
+    import contfil
+    m = FilamentModel(ROOT / "branches" / "tip_sf.toml")
+    x0 = start_orbit(m)
+    pb = problem(m, P0, cls=RadauFlow, steps=RADAU_STEPS, jacobian_update="exact")
+    pb.set_reference(x0[:-1], P0)
+    x, info = newton_dense(lambda z: pb.residual(z, P0), lambda z: pb.jacobian(z, P0), x0,
+                           tol=1e-11, max_iter=12)
+    if not info.converged:
+        raise SystemExit("set-up: the Radau orbit did not converge")
+    pl = FixedStepFlow(m, STEPS).symmetries.invariant_subspaces["planar_xz"].reduced_model()
+    rf = RadauFlow(pl.base, RADAU_STEPS)
+    q = np.array([P0])
+    phi, T = x[:-1], float(x[-1])
+    rf.flow(phi, q, T)
+    floor, c_f, c_r = floor_batch(m, x0), [], []
+    for _ in range(8):
+        c_f.append(cpu(floor, 1) / 200)
+        c_r.append(cpu(lambda: rf.flow(phi, q, T), 1) / RADAU_STEPS)
+    print(json.dumps({"contfil": str(Path(contfil.__file__).parent),
+                      "step_us": round(1e6 * min(c_r), 1), "floor_us": round(1e6 * min(c_f), 1),
+                      "step_vs_floor_new_integrator": round(min(c_r) / min(c_f), 2),
+                      "stage_vs_floor_new_integrator": round(min(c_r) / min(c_f) / 3, 2)}))
+
+
 if __name__ == "__main__":
-    if "--quick" in sys.argv[1:]:
+    if "--step-ratio" in sys.argv[1:]:
+        main_step_ratio()
+    elif "--quick" in sys.argv[1:]:
         main_quick()
     else:
         main()

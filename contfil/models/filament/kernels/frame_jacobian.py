@@ -47,7 +47,7 @@ from .effects import (
 )
 from .elastic import _qm, elastic_torques
 from .forces import segment_loads
-from .rpy_derivative import rpy_apply_jacobian_masked
+from .rpy_derivative import rpy_apply_jacobian_masked, rpy_apply_jacobian_rows
 
 
 @njit(cache=True)
@@ -337,4 +337,183 @@ def velocity_frame_jacobian(
                 if squirm and i < 3 * N:
                     W[i, o + c] += (Kt[i, 3 * m] * C[0, c] + Kt[i, 3 * m + 1] * C[1, c]
                                     + Kt[i, 3 * m + 2] * C[2, c])
+    return W
+
+
+@njit(cache=True)
+def elastic_moment_jacobian_cols(
+    q: np.ndarray, dL: float, KB: float, KT: float, cmask: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`elastic_moment_jacobian` for the rotation components ``cmask``
+    (3,) only (the other columns are zero): a planar block needs a third."""
+    N = q.shape[0]
+    Da = np.zeros((N - 1, 3, 3))
+    Db = np.zeros((N - 1, 3, 3))
+    a = np.empty(4)
+    b = np.empty(4)
+    da = np.empty(4)
+    db = np.empty(4)
+    for n in range(N - 1):
+        sg = 1.0
+        if (q[n, 0] * q[n + 1, 0] + q[n, 1] * q[n + 1, 1] + q[n, 2] * q[n + 1, 2]
+                + q[n, 3] * q[n + 1, 3]) < 0.0:
+            sg = -1.0
+        for k in range(4):
+            a[k] = q[n, k]
+            b[k] = sg * q[n + 1, k]
+        for c in range(3):
+            if not cmask[c]:
+                continue
+            e0 = 1.0 if c == 0 else 0.0
+            e1 = 1.0 if c == 1 else 0.0
+            e2 = 1.0 if c == 2 else 0.0
+            g = _qm(0.0, 0.5 * e0, 0.5 * e1, 0.5 * e2, a[0], a[1], a[2], a[3])
+            for k in range(4):
+                da[k] = g[k]
+                db[k] = 0.0
+            d0, d1, d2 = _moment_tangent(a, b, da, db, dL, KB, KT)
+            Da[n, 0, c], Da[n, 1, c], Da[n, 2, c] = d0, d1, d2
+            g = _qm(0.0, 0.5 * e0, 0.5 * e1, 0.5 * e2, b[0], b[1], b[2], b[3])
+            for k in range(4):
+                da[k] = 0.0
+                db[k] = g[k]
+            d0, d1, d2 = _moment_tangent(a, b, da, db, dL, KB, KT)
+            Db[n, 0, c], Db[n, 1, c], Db[n, 2, c] = d0, d1, d2
+    return Da, Db
+
+
+@njit(cache=True)
+def _suffix_positions_rows(K: np.ndarray, t: np.ndarray, dL: float, W: np.ndarray,
+                           cmask: np.ndarray) -> None:
+    """:func:`_suffix_positions` on all rows of the compact ``K`` (nr, 3N)
+    into ``W`` (nr, 3(N-1)), row by row (contiguous reads and writes)."""
+    N = t.shape[0]
+    nr = K.shape[0]
+    c0, c1, c2 = cmask[0], cmask[1], cmask[2]
+    for ii in range(nr):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for m in range(N - 1, 0, -1):
+            k0, k1, k2 = K[ii, 3 * m], K[ii, 3 * m + 1], K[ii, 3 * m + 2]
+            s0 = dL * (a0 + 0.5 * k0)
+            s1 = dL * (a1 + 0.5 * k1)
+            s2 = dL * (a2 + 0.5 * k2)
+            a0 += k0
+            a1 += k1
+            a2 += k2
+            t0, t1, t2 = t[m, 0], t[m, 1], t[m, 2]
+            o = 3 * (m - 1)
+            if c0:
+                W[ii, o] += -s1 * t2 + s2 * t1
+            if c1:
+                W[ii, o + 1] += s0 * t2 - s2 * t0
+            if c2:
+                W[ii, o + 2] += -s0 * t1 + s1 * t0
+
+
+@njit(cache=True)
+def velocity_frame_jacobian_rows(
+    q: np.ndarray,
+    t: np.ndarray,
+    X: np.ndarray,
+    Lam: np.ndarray,
+    F: np.ndarray,
+    T: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    M: np.ndarray,
+    rows: np.ndarray,
+    rinv: np.ndarray,
+    cmask: np.ndarray,
+) -> np.ndarray:
+    """The rows ``rows`` of :func:`velocity_frame_jacobian`, compactly: ``W``
+    (nr, 3(N-1)), row ``ii`` being ``[V; Omega]`` row ``rows[ii]``
+    (``rinv`` its inverse, ``-1`` elsewhere), the rotation components
+    ``cmask`` filled (the others zero).
+
+    The same derivative from the same formulas, for the Radau Newton matrix:
+    the segment loads ``F, T`` (N, 3) come in (the caller has them), the RPY
+    part by :func:`.rpy_derivative.rpy_apply_jacobian_rows`, the elastic part
+    on the selected components only.
+    """
+    N = q.shape[0]
+    dL = par[P_DL]
+    hdl = 0.5 * dL
+    nr = rows.shape[0]
+    W = np.zeros((nr, 3 * (N - 1)))
+    xmask = np.zeros(3, dtype=np.bool_)
+    for m in range(1, N):
+        for c in range(3):
+            if cmask[c]:
+                for k in range(3):
+                    if k != c and t[m, 3 - k - c] != 0.0:
+                        xmask[k] = True
+    squirm = flags[F_ACT] == ACT_SQUIRMER and par[P_B1] != 0.0
+    if flags[F_HYDRO] == HYD_RPY:
+        K = rpy_apply_jacobian_rows(X, par[P_A], par[P_ETA], F, T, rinv, nr, xmask)
+    else:
+        K = np.zeros((nr, 3 * N))
+    if squirm:
+        KX, Kt = squirmer_velocity_jacobian(X, t, weights(par, N), par[P_A], par[P_B1],
+                                            par[P_ETA])
+        for ii in range(nr):
+            i = rows[ii]
+            if i < 3 * N:
+                for j in range(3 * N):
+                    K[ii, j] += KX[i, j]
+    _suffix_positions_rows(K, t, dL, W, cmask)
+    Da, Db = elastic_moment_jacobian_cols(q, dL, par[P_KB], par[P_KT], cmask)
+    fol = flags[F_ACT] == ACT_FOLLOWER
+    w = weights(par, N)
+    C = np.empty((3, 3))
+    Cs = np.empty((N, 3, 3))
+    L = np.empty(3)
+    dF = np.zeros((N, 3, 3))
+    dT = np.zeros((N, 3, 3, 3))  # per moving segment m: torque change of segments m-1, m, m+1
+    for m in range(1, N):
+        t0, t1, t2 = t[m, 0], t[m, 1], t[m, 2]
+        C[0, 0], C[0, 1], C[0, 2] = 0.0, t2, -t1
+        C[1, 0], C[1, 1], C[1, 2] = -t2, 0.0, t0
+        C[2, 0], C[2, 1], C[2, 2] = t1, -t0, 0.0
+        Cs[m] = C
+        ff = -par[P_F] * w[m] if fol else 0.0
+        for k in range(3):
+            L[k] = Lam[m - 1, k]
+            if m < N - 1:
+                L[k] += Lam[m, k]
+        for k in range(3):
+            for c in range(3):
+                dF[m, k, c] = ff * C[k, c]
+        for c in range(3):
+            dT[m, 1, 0, c] -= hdl * (-L[2] * C[1, c] + L[1] * C[2, c])
+            dT[m, 1, 1, c] -= hdl * (L[2] * C[0, c] - L[0] * C[2, c])
+            dT[m, 1, 2, c] -= hdl * (-L[1] * C[0, c] + L[0] * C[1, c])
+        for k in range(3):
+            for c in range(3):
+                dT[m, 0, k, c] += Db[m - 1, k, c]
+                dT[m, 1, k, c] -= Db[m - 1, k, c]
+                if m < N - 1:
+                    dT[m, 1, k, c] += Da[m, k, c]
+                    dT[m, 2, k, c] -= Da[m, k, c]
+    for ii in range(nr):
+        i = rows[ii]
+        for m in range(1, N):
+            o = 3 * (m - 1)
+            nlo = m - 1
+            nhi = m + 1 if m < N - 1 else m
+            for c in range(3):
+                if not cmask[c]:
+                    continue
+                s = 0.0
+                if fol:
+                    for k in range(3):
+                        s += M[i, 3 * m + k] * dF[m, k, c]
+                for n in range(nlo, nhi + 1):
+                    for k in range(3):
+                        s += M[i, 3 * N + 3 * n + k] * dT[m, n - m + 1, k, c]
+                W[ii, o + c] += s
+                if squirm and i < 3 * N:
+                    W[ii, o + c] += (Kt[i, 3 * m] * Cs[m, 0, c] + Kt[i, 3 * m + 1] * Cs[m, 1, c]
+                                     + Kt[i, 3 * m + 2] * Cs[m, 2, c])
     return W

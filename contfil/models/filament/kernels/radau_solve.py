@@ -44,7 +44,15 @@ from numba.np.linalg import _LAPACK
 from .bdf2_residual import frames_at
 from .effects import P_DL
 from .geometry import positions, tangents
-from .radau_step import newton_blocks, stage_blocks, stage_residual
+from .radau_step import (
+    newton_blocks,
+    newton_blocks_prepared,
+    prepare_stages,
+    stage_arrays,
+    stage_blocks,
+    stage_residual,
+    stage_residual_prepared,
+)
 
 #: LAPACK ``dgetrf`` as numba binds it for ``np.linalg.inv`` (kind, m, n, a, lda, ipiv)
 _GETRF = _LAPACK().numba_xxgetrf(types.float64)
@@ -173,6 +181,24 @@ def coupling_solve(Gt: np.ndarray, Cap: np.ndarray, cpiv: np.ndarray,
 
 
 @njit(cache=True, fastmath=_FAST)
+def _coupling_solve_1(Gt: np.ndarray, Cap: np.ndarray, cpiv: np.ndarray,
+                      B: np.ndarray) -> np.ndarray:
+    """:func:`coupling_solve` of one right-hand side (a Newton iteration), by
+    dot products along the rows of ``Gt`` (the tangent keeps
+    :func:`coupling_solve`)."""
+    s, nu, nz = Gt.shape
+    dU = np.empty((s * nu, 1))
+    for i in range(s):
+        for a in range(nu):
+            acc = 0.0
+            for r in range(nz):
+                acc += Gt[i, a, r] * B[i, r, 0]
+            dU[i * nu + a, 0] = acc
+    lu_solve_t(Cap, cpiv, dU)
+    return dU
+
+
+@njit(cache=True, fastmath=_FAST)
 def block_solve(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray, Gt: np.ndarray,
                 Cap: np.ndarray, cpiv: np.ndarray, B: np.ndarray) -> None:
     """``B <- J^{-1} B`` in place, ``B`` (s, nz, k): the stage Jacobian
@@ -181,17 +207,25 @@ def block_solve(Jd: np.ndarray, K: np.ndarray, W: np.ndarray, piv: np.ndarray, G
     nu = K.shape[2]
     k = B.shape[2]
     R = np.empty((nz, k))
-    dU = coupling_solve(Gt, Cap, cpiv, B)
+    dU = _coupling_solve_1(Gt, Cap, cpiv, B) if k == 1 else coupling_solve(Gt, Cap, cpiv, B)
     KU = np.empty((s, nz, k))
-    for m in range(s):
-        for r in range(nz):
-            for j in range(k):
-                KU[m, r, j] = 0.0
-            for b in range(nu):
-                kv = K[m, r, b]
-                if kv != 0.0:
-                    for j in range(k):
-                        KU[m, r, j] += kv * dU[m * nu + b, j]
+    if k == 1:  # a Newton iteration: dot products along the rows of K
+        for m in range(s):
+            for r in range(nz):
+                acc = 0.0
+                for b in range(nu):
+                    acc += K[m, r, b] * dU[m * nu + b, 0]
+                KU[m, r, 0] = acc
+    else:
+        for m in range(s):
+            for r in range(nz):
+                for j in range(k):
+                    KU[m, r, j] = 0.0
+                for b in range(nu):
+                    kv = K[m, r, b]
+                    if kv != 0.0:
+                        for j in range(k):
+                            KU[m, r, j] += kv * dU[m * nu + b, j]
     for i in range(s):
         for r in range(nz):
             for j in range(k):
@@ -287,12 +321,23 @@ def newton_step(
     res = np.inf
     F = np.empty((s, nz))
     Fc = np.empty((s, nz))
+    # the first candidate's stages are prepared once for its residual and,
+    # if Newton starts there (the rule on smooth orbits), its Newton matrix
+    Zp = np.empty((s, 6 * N))
+    Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms = stage_arrays(s, N)
+    prepared = False
     for t in range(cands.shape[0]):
-        rc = stage_residual(cands[t], Fc, qk, xk, dt, W, par, flags, zmap, rmap, scales)
+        if t == 0:
+            physical(cands[0], scales, zmap, Zp)
+            prepare_stages(Zp, qk, par, flags, Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms)
+            rc = stage_residual_prepared(cands[0], Zp, Fc, xk, dt, W, par, rmap, Xs, Vs, Oms)
+        else:
+            rc = stage_residual(cands[t], Fc, qk, xk, dt, W, par, flags, zmap, rmap, scales)
         if rc < res or res == np.inf:
             Z[:, :] = cands[t]
             F[:, :] = Fc
             res = rc
+            prepared = t == 0
         if res < rules[R_PRED]:
             break
     Jd = np.empty((s, nz, nz))
@@ -314,8 +359,13 @@ def newton_step(
         if its >= max_iter:
             return MAXITER, its, builds, res
         if not have:
-            physical(Z, scales, zmap, Zf)
-            newton_blocks(Zf, qk, dt, W, par, flags, zmap, rmap, scales, Jd, K)
+            if prepared:
+                newton_blocks_prepared(Zp, Qs, Ts, Xs, Fs, Tqs, Mobs, Oms, dt, W, par, flags,
+                                       zmap, rmap, scales, Jd, K)
+                prepared = False
+            else:
+                physical(Z, scales, zmap, Zf)
+                newton_blocks(Zf, qk, dt, W, par, flags, zmap, rmap, scales, Jd, K)
             builds += 1
             if block_factor(Jd, K, W, piv, Gt, Cap, cpiv) != 0:
                 return NONFINITE, its, builds, res

@@ -46,8 +46,12 @@ from .bdf2_tangent import (
     reduced_counts,
     residual_frame_jacobian,
 )
-from .effects import P_A, P_DL, P_ETA
+from .effects import P_A, P_DL, P_ETA, P_KB, P_KT, active_force, add_surface_flow
+from .elastic import elastic_torques
+from .forces import segment_loads
+from .frame_jacobian import velocity_frame_jacobian_rows
 from .geometry import positions, tangents
+from .quaternion import dexp_inv
 
 
 def radau_tableau(s: int) -> tuple[np.ndarray, np.ndarray]:
@@ -110,7 +114,92 @@ def stage_residual(
     scales: np.ndarray,
 ) -> float:
     """Scaled stage residuals ``F[i] = R_i(Z)`` (s, nz) in place; returns the
-    infinity norm. ``Z`` (s, nz): scaled reduced stage unknowns."""
+    infinity norm. ``Z`` (s, nz): scaled reduced stage unknowns.
+
+    Row for row :func:`.bdf2_residual.residual` with ``(a1, a2, b1, g) = (1, 0,
+    1, 1/w_ii)`` and the stage history (module docstring), the same
+    operations in the same order (bit for bit :func:`stage_residual_reference`),
+    with each stage's frames and positions formed once for its own rows and
+    the other stages' histories.
+    """
+    s = Z.shape[0]
+    N = qk.shape[0]
+    dL = par[P_DL]
+    Xs = np.empty((s, N, 3))
+    Ts = np.empty((s, N, 3))
+    Qs = np.empty((s, N, 4))
+    Us = np.empty((s, 6 * N))
+    q = np.empty((N, 4))
+    for j in range(s):
+        zf = full_unknowns(Z[j], zmap, scales[j], N)
+        Us[j] = zf
+        frames_at(zf, qk, q)
+        t = tangents(q)
+        Qs[j] = q
+        Ts[j] = t
+        Xs[j] = positions(t, dL)
+    rfull = np.empty(6 * N)
+    xh = np.empty((N, 3))
+    uh = np.zeros(3 * (N - 1))
+    u = np.zeros(3)
+    w = np.empty(3)
+    res = 0.0
+    for i in range(s):
+        for n in range(N):
+            for k in range(3):
+                xh[n, k] = xk[n, k]
+        for m in range(3 * (N - 1)):
+            uh[m] = 0.0
+        for j in range(s):
+            if j == i:
+                continue
+            wj = W[i, j] / W[i, i]
+            for n in range(N):
+                for k in range(3):
+                    xh[n, k] -= wj * (Xs[j, n, k] - xk[n, k])
+            for m in range(3 * (N - 1)):
+                uh[m] -= wj * Us[j, m]
+        zf = Us[i]
+        Lam, Fc, Tc = unpack_loads(zf, N)
+        V, Om = velocities(Qs[i], Ts[i], Xs[i], Lam, Fc, Tc, par, flags)
+        gdt = (1.0 / W[i, i]) * dt
+        for n in range(N):
+            for k in range(3):
+                rfull[3 * n + k] = (Xs[i, n, k] - xh[n, k] - gdt * V[n, k]) / dL
+            if n == 0:
+                for k in range(3):
+                    rfull[3 * N + k] = -gdt * Om[0, k]
+            else:
+                for k in range(3):
+                    u[k] = zf[3 * (n - 1) + k]
+                    w[k] = Om[n, k]
+                di = dexp_inv(u, w)
+                for k in range(3):
+                    rfull[3 * N + 3 * n + k] = u[k] - uh[3 * (n - 1) + k] - gdt * di[k]
+        for m in range(F.shape[1]):
+            F[i, m] = rfull[rmap[m]]
+            a = abs(F[i, m])
+            if not a <= res:  # NaN propagates
+                res = a
+    return res
+
+
+@njit(cache=True)
+def stage_residual_reference(
+    Z: np.ndarray,
+    F: np.ndarray,
+    qk: np.ndarray,
+    xk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+) -> float:
+    """:func:`stage_residual` by calls of :func:`.bdf2_residual.residual`
+    (the form before session 11; bit for bit the same values, tested)."""
     s = Z.shape[0]
     N = qk.shape[0]
     dL = par[P_DL]
@@ -262,6 +351,225 @@ def stage_blocks(
 
 
 @njit(cache=True)
+def _load_columns_rows(
+    t: np.ndarray,
+    gdt: float,
+    par: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scale: np.ndarray,
+    nu: int,
+    M: np.ndarray,
+    A: np.ndarray,
+    rinv: np.ndarray,
+) -> np.ndarray:
+    """:func:`.bdf2_tangent._load_columns` (the exact load columns) with the
+    mobility read by rows: each load column is at most six mobility columns
+    (two segments' forces and torques), gathered from the selected rows
+    (``rinv``: full row -> selected row, -1 elsewhere) only."""
+    N = t.shape[0]
+    nz = zmap.shape[0]
+    nl = nz - nu
+    dL = par[P_DL]
+    sF, sT = scale[3 * (N - 1)], scale[6 * N - 1]
+    h = 0.5 * dL
+    oL = 3 * (N - 1)
+    RT = 3 * N
+    idx = np.zeros((nl, 6), dtype=np.int64)
+    cf = np.zeros((nl, 6))
+    for jj in range(nl):
+        col = zmap[nu + jj]
+        if col < 6 * (N - 1):
+            j, k = (col - oL) // 3, (col - oL) % 3
+            k1, k2 = (k + 1) % 3, (k + 2) % 3
+            idx[jj, 0], cf[jj, 0] = 3 * j + k, sF
+            idx[jj, 1], cf[jj, 1] = 3 * j + 3 + k, -sF
+            idx[jj, 2], cf[jj, 2] = RT + 3 * j + k1, sF * h * t[j, k2]
+            idx[jj, 3], cf[jj, 3] = RT + 3 * j + k2, -sF * h * t[j, k1]
+            idx[jj, 4], cf[jj, 4] = RT + 3 * j + 3 + k1, sF * h * t[j + 1, k2]
+            idx[jj, 5], cf[jj, 5] = RT + 3 * j + 3 + k2, -sF * h * t[j + 1, k1]
+        elif col < 6 * N - 3:
+            idx[jj, 0], cf[jj, 0] = col - 6 * (N - 1), sF
+        else:
+            idx[jj, 0], cf[jj, 0] = RT + col - (6 * N - 3), sT
+    # the mobility rows of the selected residual rows only: the orientation
+    # rows mix the selected components of Omega_n by dexp_inv(u_n), which is
+    # exact for an invariant block (as residual_frame_jacobian)
+    MG = np.empty((nz, nl))
+    for a in range(nz):
+        r = rmap[a]
+        for jj in range(nl):
+            acc = 0.0
+            for p in range(6):
+                acc += cf[jj, p] * M[r, idx[jj, p]]
+            MG[a, jj] = acc
+    out = np.empty((nz, nl))
+    for a in range(nz):
+        r = rmap[a]
+        if r < 3 * N:
+            for j in range(nl):
+                out[a, j] = -gdt / dL * MG[a, j]
+        else:
+            n, c = (r - 3 * N) // 3, (r - 3 * N) % 3
+            if n == 0:
+                for j in range(nl):
+                    out[a, j] = -gdt * MG[a, j]
+            else:
+                An = A[n - 1]
+                for j in range(nl):
+                    out[a, j] = 0.0
+                for kk in range(3):
+                    b = rinv[3 * N + 3 * n + kk]
+                    if b >= 0:
+                        for j in range(nl):
+                            out[a, j] -= gdt * An[c, kk] * MG[b, j]
+    return out
+
+
+@njit(cache=True)
+def prepare_stages(Zf: np.ndarray, qk: np.ndarray, par: np.ndarray, flags: np.ndarray,
+                   Qs: np.ndarray, Ts: np.ndarray, Xs: np.ndarray, Fs: np.ndarray,
+                   Tqs: np.ndarray, Mobs: np.ndarray, Vs: np.ndarray, Oms: np.ndarray) -> None:
+    """Per stage at physical unknowns ``Zf`` (s, 6N), in place: frames ``Qs``
+    (s, N, 4), tangents ``Ts``, positions ``Xs``, segment forces ``Fs`` and
+    torques ``Tqs`` (s, N, 3), the dense mobility ``Mobs`` (s, 6N, 6N) and
+    the velocities ``Vs``, ``Oms`` (s, N, 3) as its product (plus the
+    squirmers' surface flow): what both the Newton matrix
+    (:func:`newton_blocks_prepared`) and the stage residual
+    (:func:`stage_residual_prepared`) need at one point."""
+    s = Zf.shape[0]
+    N = qk.shape[0]
+    dL = par[P_DL]
+    R = 3 * N
+    q = np.empty((N, 4))
+    FT = np.empty(6 * N)
+    for i in range(s):
+        zf = Zf[i]
+        frames_at(zf, qk, q)
+        t = tangents(q)
+        X = positions(t, dL)
+        Qs[i] = q
+        Ts[i] = t
+        Xs[i] = X
+        Lam, Fc, Tc = unpack_loads(zf, N)
+        Mob = dense_mobility(X, par, flags)
+        Mobs[i] = Mob
+        TE = elastic_torques(q, dL, par[P_KB], par[P_KT])
+        F, T = segment_loads(t, Lam, Fc, Tc, TE, active_force(par, flags, t), dL)
+        Fs[i] = F
+        Tqs[i] = T
+        for n in range(N):
+            for k in range(3):
+                FT[3 * n + k] = F[n, k]
+                FT[R + 3 * n + k] = T[n, k]
+        V = np.empty((N, 3))
+        for n in range(N):
+            for k in range(3):
+                acc = 0.0
+                acc2 = 0.0
+                r1 = 3 * n + k
+                r2 = R + 3 * n + k
+                for c in range(6 * N):
+                    acc += Mob[r1, c] * FT[c]
+                    acc2 += Mob[r2, c] * FT[c]
+                V[n, k] = acc
+                Oms[i, n, k] = acc2
+        add_surface_flow(par, flags, X, t, V)
+        Vs[i] = V
+
+
+@njit(cache=True)
+def newton_blocks_prepared(
+    Zf: np.ndarray,
+    Qs: np.ndarray,
+    Ts: np.ndarray,
+    Xs: np.ndarray,
+    Fs: np.ndarray,
+    Tqs: np.ndarray,
+    Mobs: np.ndarray,
+    Oms: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+    Jd: np.ndarray,
+    K: np.ndarray,
+) -> None:
+    """:func:`newton_blocks` from the stages prepared by :func:`prepare_stages`."""
+    s = Zf.shape[0]
+    N = Qs.shape[1]
+    nz = zmap.shape[0]
+    nu, npos = reduced_counts(zmap, rmap, N)
+    dL = par[P_DL]
+    R = 3 * N
+    rinv = -np.ones(6 * N, dtype=np.int64)
+    for a in range(nz):
+        rinv[rmap[a]] = a
+    cmask = np.zeros(3, dtype=np.bool_)
+    for j in range(nu):
+        cmask[zmap[j] % 3] = True
+    G = np.empty((nz, nu))
+    for i in range(s):
+        zf = Zf[i]
+        gdt = dt / W[i, i]
+        q, t, X, Mob = Qs[i], Ts[i], Xs[i], Mobs[i]
+        Lam, _, _ = unpack_loads(zf, N)
+        B, A, _ = _segment_blocks(zf, N)
+        Jl = _load_columns_rows(t, gdt, par, zmap, rmap, scales[i], nu, Mob, A, rinv)
+        for a in range(nz):
+            for b in range(nz - nu):
+                Jd[i, a, nu + b] = Jl[a, b]
+        Wc = velocity_frame_jacobian_rows(q, t, X, Lam, Fs[i], Tqs[i], par, flags, Mob, rmap,
+                                          rinv, cmask)
+        Arm = arm_matrix(t, zmap, rmap, nu, npos, dL)
+        for a in range(nz):
+            r = rmap[a]
+            if r < R:
+                for j in range(nu):
+                    G[a, j] = -gdt / dL * Wc[a, zmap[j]] + Arm[a, j]
+            else:
+                n, k = (r - R) // 3, (r - R) % 3
+                if n == 0:
+                    for j in range(nu):
+                        G[a, j] = -gdt * Wc[a, zmap[j]]
+                else:
+                    An = A[n - 1]
+                    for j in range(nu):
+                        acc = 0.0
+                        for kk in range(3):
+                            b = rinv[R + 3 * n + kk]
+                            if b >= 0:
+                                acc += An[k, kk] * Wc[b, zmap[j]]
+                        G[a, j] = -gdt * acc
+        Br = _reduced_block(B, zmap, nu)
+        Ju = G @ Br
+        for a in range(nz):
+            for b in range(nu):
+                Jd[i, a, b] = Ju[a, b]
+        add_orientation_u(Jd[i], zf, Oms[i], zmap, rinv, nu, gdt)
+        AB = Arm @ Br
+        for a in range(nz):
+            for b in range(nu):
+                K[i, a, b] = AB[a, b] if a < npos else 0.0
+        for b in range(nu):
+            a = rinv[R + 3 * (zmap[b] // 3 + 1) + zmap[b] % 3]
+            if a >= 0:
+                K[i, a, b] += 1.0
+
+
+@njit(cache=True)
+def stage_arrays(s: int, N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                          np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Work arrays of :func:`prepare_stages` ``(Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms)``."""
+    return (np.empty((s, N, 4)), np.empty((s, N, 3)), np.empty((s, N, 3)), np.empty((s, N, 3)),
+            np.empty((s, N, 3)), np.empty((s, 6 * N, 6 * N)), np.empty((s, N, 3)),
+            np.empty((s, N, 3)))
+
+
+@njit(cache=True)
 def newton_blocks(
     Zf: np.ndarray,
     qk: np.ndarray,
@@ -278,6 +586,107 @@ def newton_blocks(
     """``Jd`` (s, nz, nz) and ``K`` (s, nz, nu) of :func:`stage_blocks` in
     place, without what only the tangent needs (``dF/dth^k``, ``dF/ddt``,
     ``dF/ds``): the Newton matrix of a step.
+
+    The same exact derivative as :func:`stage_blocks` (exact load columns;
+    increment columns ``G dexp(u) + E``, ``G`` the exact frame derivative,
+    ``E`` the explicit ``u`` of the orientation rows), assembled with less
+    work per stage: the segment loads once per stage, ``Omega`` as the dense
+    mobility's product (:func:`prepare_stages`), the frame derivative on the
+    selected rows and rotation components only
+    (:func:`.frame_jacobian.velocity_frame_jacobian_rows`), the load columns
+    by mobility rows. Equal to :func:`newton_blocks_reference` to round-off
+    (tested).
+    """
+    s = Zf.shape[0]
+    N = qk.shape[0]
+    Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms = stage_arrays(s, N)
+    prepare_stages(Zf, qk, par, flags, Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms)
+    newton_blocks_prepared(Zf, Qs, Ts, Xs, Fs, Tqs, Mobs, Oms, dt, W, par, flags, zmap, rmap,
+                           scales, Jd, K)
+
+
+@njit(cache=True)
+def stage_residual_prepared(
+    Z: np.ndarray,
+    Zf: np.ndarray,
+    F: np.ndarray,
+    xk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    rmap: np.ndarray,
+    Xs: np.ndarray,
+    Vs: np.ndarray,
+    Oms: np.ndarray,
+) -> float:
+    """:func:`stage_residual` from the stages prepared by :func:`prepare_stages`
+    at ``Zf`` (the physical form of ``Z``): the same rows, with the velocities
+    the dense mobility's product instead of its matrix-free application
+    (equal to round-off). Returns the infinity norm."""
+    s = Z.shape[0]
+    N = Xs.shape[1]
+    dL = par[P_DL]
+    rfull = np.empty(6 * N)
+    xh = np.empty((N, 3))
+    uh = np.zeros(3 * (N - 1))
+    u = np.zeros(3)
+    w = np.empty(3)
+    res = 0.0
+    for i in range(s):
+        for n in range(N):
+            for k in range(3):
+                xh[n, k] = xk[n, k]
+        for m in range(3 * (N - 1)):
+            uh[m] = 0.0
+        for j in range(s):
+            if j == i:
+                continue
+            wj = W[i, j] / W[i, i]
+            for n in range(N):
+                for k in range(3):
+                    xh[n, k] -= wj * (Xs[j, n, k] - xk[n, k])
+            for m in range(3 * (N - 1)):
+                uh[m] -= wj * Zf[j, m]
+        zf = Zf[i]
+        gdt = (1.0 / W[i, i]) * dt
+        for n in range(N):
+            for k in range(3):
+                rfull[3 * n + k] = (Xs[i, n, k] - xh[n, k] - gdt * Vs[i, n, k]) / dL
+            if n == 0:
+                for k in range(3):
+                    rfull[3 * N + k] = -gdt * Oms[i, 0, k]
+            else:
+                for k in range(3):
+                    u[k] = zf[3 * (n - 1) + k]
+                    w[k] = Oms[i, n, k]
+                di = dexp_inv(u, w)
+                for k in range(3):
+                    rfull[3 * N + 3 * n + k] = u[k] - uh[3 * (n - 1) + k] - gdt * di[k]
+        for m in range(F.shape[1]):
+            F[i, m] = rfull[rmap[m]]
+            a = abs(F[i, m])
+            if not a <= res:  # NaN propagates
+                res = a
+    return res
+
+
+@njit(cache=True)
+def newton_blocks_reference(
+    Zf: np.ndarray,
+    qk: np.ndarray,
+    dt: float,
+    W: np.ndarray,
+    par: np.ndarray,
+    flags: np.ndarray,
+    zmap: np.ndarray,
+    rmap: np.ndarray,
+    scales: np.ndarray,
+    Jd: np.ndarray,
+    K: np.ndarray,
+) -> None:
+    """:func:`newton_blocks` as assembled before session 11 (the BDF2 tangent
+    kernels called per stage), kept as the reference the faster assembly is
+    tested and benchmarked against.
 
     The diagonal blocks are assembled as :func:`.bdf2_tangent.step_matrices`
     does (exact load columns; increment columns ``G dexp(u) + E``, ``G`` the

@@ -164,3 +164,98 @@ def rpy_apply_jacobian_masked(
             _add_cross_block(K, R + 3 * i, ci, cj, h, Fj, 1.0, cp, dcp, r, rmask, xmask)
             _add_cross_block(K, R + 3 * j, ci, cj, h, Fi, -1.0, cp, dcp, r, rmask, xmask)
     return K
+
+
+@njit(cache=True)
+def rpy_apply_jacobian_rows(
+    X: np.ndarray, a: float, eta: float, F: np.ndarray, T: np.ndarray, rinv: np.ndarray,
+    nr: int, xmask: np.ndarray,
+) -> np.ndarray:
+    """The rows of :func:`rpy_apply_jacobian_masked` that ``rinv`` selects, compactly.
+
+    ``rinv`` (6N,) maps a row of ``[V; Omega]`` to its compact index (``-1``:
+    not needed); returns ``K`` (nr, 3N) with only the position components
+    ``xmask`` (3,) filled. The same entries as the masked kernel (each pair's
+    derivative blocks, the couplings folded into the same entries), for the
+    Radau Newton matrix: no zero rows, no per-entry mask tests.
+    """
+    N = X.shape[0]
+    K = np.zeros((nr, 3 * N))
+    R = 3 * N
+    nx = 0
+    for m in range(3):
+        if xmask[m]:
+            nx += 1
+    xs = np.empty(nx, dtype=np.int64)
+    nx = 0
+    for m in range(3):
+        if xmask[m]:
+            xs[nx] = m
+            nx += 1
+    h = np.empty(3)
+    v = np.empty(3)
+    w = np.empty(3)
+    for i in range(N):
+        for j in range(i + 1, N):
+            h[0] = X[i, 0] - X[j, 0]
+            h[1] = X[i, 1] - X[j, 1]
+            h[2] = X[i, 2] - X[j, 2]
+            r = np.sqrt(h[0] * h[0] + h[1] * h[1] + h[2] * h[2])
+            ir = 1.0 / r
+            h[0] *= ir
+            h[1] *= ir
+            h[2] *= ir
+            _, ttR, _, rrR, cp = _pair_coeffs(r, a, eta)
+            dttI, dttR, drrI, drrR, dcp = pair_coeff_derivs(r, a, eta)
+            ci, cj = 3 * i, 3 * j
+            f = cp * ir
+            e = dcp - f
+            for blk in range(4):
+                # V_i: F_j (tt), +T_j x rh; V_j: F_i, -T_i x rh;
+                # Omega_i: T_j (rr), +F_j x rh; Omega_j: T_i, -F_i x rh
+                row = 3 * i if blk == 0 else (3 * j if blk == 1 else (R + 3 * i if blk == 2
+                                                                       else R + 3 * j))
+                if rinv[row] < 0 and rinv[row + 1] < 0 and rinv[row + 2] < 0:
+                    continue
+                odd = blk == 1 or blk == 3
+                seg = i if odd else j
+                sg = -1.0 if odd else 1.0
+                if blk < 2:
+                    dA_, B_, dB_ = dttI, ttR, dttR
+                    for k in range(3):
+                        v[k] = F[seg, k]
+                        w[k] = T[seg, k]
+                else:
+                    dA_, B_, dB_ = drrI, rrR, drrR
+                    for k in range(3):
+                        v[k] = T[seg, k]
+                        w[k] = F[seg, k]
+                sv = h[0] * v[0] + h[1] * v[1] + h[2] * v[2]
+                cI = B_ * sv * ir
+                cHH = dB_ * sv - 2.0 * B_ * sv * ir
+                cHV = B_ * ir
+                es = sg * e
+                fs = sg * f
+                # d_km = av_k h_m + bv_k v_m + S_km: the derivative of A v + B rh (rh.v)
+                # and of sg c w x rh, S = cI I + sg (c/r) [w]x; the active rows only
+                for k in range(3):
+                    rr = rinv[row + k]
+                    if rr < 0:
+                        continue
+                    k1 = 0 if k == 2 else k + 1
+                    k2 = 2 if k == 0 else k - 1
+                    xk = w[k1] * h[k2] - w[k2] * h[k1]  # (w x rh)_k
+                    avk = dA_ * v[k] + cHH * h[k] + es * xk
+                    bvk = cHV * h[k]
+                    for p in range(nx):
+                        m = xs[p]
+                        d = avk * h[m] + bvk * v[m]
+                        if m == k:
+                            d += cI
+                        elif m == k1:
+                            d -= fs * w[k2]  # [w]x[k, k+1] = -w[k+2]
+                        else:
+                            d += fs * w[k1]  # [w]x[k, k+2] = w[k+1]
+                        K[rr, ci + m] += d
+                        K[rr, cj + m] -= d
+    return K
