@@ -184,3 +184,22 @@ def test_3d_tip_ff_beyond_the_first_torus_is_chaotic_along_the_whole_classified_
     assert ev["lyapunov"] > 3 * ev["lyapunov_error"] > 0
     assert min(ev["lyapunov_block_means"]) > 0
     assert ev["discrete_fraction"] < 0.98
+
+
+def test_dis_sf_in_radau_has_both_tori_with_error_estimates() -> None:
+    """Stored ``dis_sf_high_radau``: beating's complex pair leaves the unit
+    circle at NS1 (towards QP2) and returns at NS2, both located by the torus
+    event with a p_error from a refined problem; QP2's state node is joined
+    to NS1."""
+    g = load_run_graph(ROOT / "branches" / "data" / "dis_sf_high_radau")
+    br = g.branch("B0")
+    tori = [g.special_point(s) for s in g.special_points_on("B0")]
+    assert [sp.kind for sp in tori] == ["torus", "torus"]
+    for sp, ref in zip(tori, (655.3117, 3658.718), strict=True):
+        assert abs(sp.point.p - ref) < 1e-3 and abs(sp.data["p_error"]) < 1e-3
+        assert abs(abs(complex(sp.data["multiplier"])) - 1.0) < 1e-8
+    ns1, ns2 = (sp.point.p for sp in tori)
+    assert all(pt.n_unstable == 0 for pt in br.points if pt.p < ns1 or pt.p > ns2)
+    assert all(pt.n_unstable == 2 for pt in br.points if ns1 < pt.p < ns2)
+    (a,) = g.states_from("NS1")
+    assert g.state(a)["kind"] == "quasiperiodic"
