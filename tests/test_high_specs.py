@@ -203,3 +203,23 @@ def test_dis_sf_in_radau_has_both_tori_with_error_estimates() -> None:
     assert all(pt.n_unstable == 2 for pt in br.points if ns1 < pt.p < ns2)
     (a,) = g.states_from("NS1")
     assert g.state(a)["kind"] == "quasiperiodic"
+
+
+def test_tip_ff_beating_beyond_f_1000_is_not_annihilated_and_restabilises() -> None:
+    """Stored ``tip_ff_high_radau2`` (beating from f = 1000): no fold of
+    beating up to where the branch stops (2328.7); its two small-angle complex
+    pairs return inside the circle at 2096.80 (the safety net's report, the
+    pairs' angle 0.025 rad being below the resolved angle), stable up to the
+    out-of-plane pitchfork at 2236.72, which switches to B1."""
+    g = load_run_graph(ROOT / "branches" / "data" / "tip_ff_high_radau2")
+    br = g.branch("B0")
+    sps = [g.special_point(s) for s in g.special_points_on("B0")]
+    assert not any(sp.kind == "cycle_fold" for sp in sps)
+    sc = next(sp for sp in sps if sp.kind == "stability_change")
+    bpc = next(sp for sp in sps if sp.kind == "cycle_branch_point")
+    assert (sc.data["count_before"], sc.data["count_after"]) == (4, 0)
+    assert abs(sc.point.p - 2096.80) < 0.01 and abs(bpc.point.p - 2236.72) < 0.01
+    assert bpc.data["event"] == "subspace_breaking" and abs(bpc.data["p_error"]) < 1e-3
+    assert all(pt.n_unstable == 0 for pt in br.points if sc.point.p < pt.p < bpc.point.p)
+    assert all(pt.n_unstable == 4 for pt in br.points if pt.p < sc.point.p)
+    assert br.points[-1].p > 2328.0
