@@ -164,16 +164,21 @@ def test_3d_tip_sf_qp3_in_radau_has_its_own_pitchfork_where_bpc6s_family_ends() 
     above = [pt.n_unstable for pt in qp3.points if pt.p > bpc2.point.p]
     assert set(below) == {1} and set(above) == {0}
 
-def test_3d_tip_ff_beyond_the_first_torus_is_chaotic_along_the_whole_classified_window() -> None:
-    """Stored ``tip_ff_high_radau``: the state simulated at f = 420 (between
-    beating's tori NS1 407.35 and NS2 508.59), joined to NS1, is chaotic by
-    an exponent measured along the classified trajectory (decisions 39): more
-    than three errors above zero, every block mean positive, the whole
-    window of 1000 periods after 1000 discarded, a broadband spectrum."""
+
+@pytest.mark.parametrize("f", [420.0, 440.0])
+def test_3d_tip_ff_beyond_the_first_torus_is_chaotic_along_the_whole_classified_window(
+    f: float,
+) -> None:
+    """Stored ``tip_ff_high_radau``: the states simulated at f = 420 and 440
+    (between beating's tori NS1 407.35 and NS2 508.59), joined to NS1, are
+    chaotic by an exponent measured along the classified trajectory
+    (decisions 39): more than three errors above zero, every block mean
+    positive, over the whole window of 1000 periods after 1000 discarded,
+    with a broadband spectrum."""
     g = load_run_graph(ROOT / "branches" / "data" / "tip_ff_high_radau")
     ns1 = g.special_id("NS1")
     assert g.special_point(ns1).kind == "torus"
-    (a,) = [s for s in g.states_from(ns1) if g.state(s)["p"] == 420.0]
+    (a,) = [s for s in g.states_from(ns1) if g.state(s)["p"] == f]
     st = g.state(a)
     ev = st["evidence"]
     assert st["kind"] == "chaotic" and ev["label"] == "chaotic"
