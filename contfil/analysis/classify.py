@@ -65,6 +65,7 @@ __all__ = [
     "SectionEvidence",
     "classify_attractor",
     "classify_samples",
+    "redecide",
     "spectral_peaks",
     "integer_combinations",
     "combination_coverage",
@@ -674,11 +675,14 @@ def classify_attractor(
                                 n_blocks=10)
         lyap_kwargs = {k: v for k, v in kwargs.items() if k in (
             "fp_tol", "rw_tol", "section_tol", "max_period", "discrete_power", "lyap_tol")}
-        res = _redecide(res, lyap, **lyap_kwargs)
+        res = redecide(res, lyap, **lyap_kwargs)
     return res
 
 
-def _redecide(res: AttractorClass, lyap: LyapunovResult, **kw: Any) -> AttractorClass:
+def redecide(res: AttractorClass, lyap: LyapunovResult, **kw: Any) -> AttractorClass:
+    """``res`` decided again with the Lyapunov exponent ``lyap`` weighed in
+    (measured after the samples were classified, e.g. along the same
+    trajectory; ``kw`` are the thresholds of :func:`classify_samples`)."""
     label, reasons = _label(res.state_mean, res.state_std, res.invariant_mean,
                             res.invariant_std, res.section, res.spectrum, lyap, **kw)
     return AttractorClass(label, reasons, res.n_steps, res.dt, res.state_mean, res.state_std,

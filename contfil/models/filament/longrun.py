@@ -43,12 +43,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.analysis.classify import AttractorClass, _redecide, classify_samples
+from contfil.analysis.classify import AttractorClass, classify_samples, redecide
 from contfil.analysis.lyapunov import LockstepLyapunov
 from contfil.errors import NonFiniteError, SpecError
 
 from .integrators.bdf2 import BDF2Stepper, flow
-from .integrators.bdf2_stepper import _relative_rotvec
 from .kernels.geometry import frames_from_state, positions, tangents
 from .physics import embed_planar
 
@@ -215,26 +214,10 @@ class BDF2Lockstep:
 
     def follow(self, reference: Any, h: Array) -> None:
         """Be at the pair ``h``, with the reference stepper's loads, Jacobian and step."""
-        st, rs = self.run.stepper, reference.run.stepper
         n = h.size // 2
-        u, up = np.asarray(h[:n], dtype=float), np.asarray(h[n:], dtype=float)
-        ph = st.phys
-        q = frames_from_state(embed_planar(u) if ph.planar else u)
-        qp = frames_from_state(embed_planar(up) if ph.planar else up)
-        N = ph.N
-        z = np.zeros(6 * N)
-        z[: 3 * (N - 1)] = _relative_rotvec(q[1:], qp[1:]).ravel()
-        z[3 * (N - 1):] = rs._zp[3 * (N - 1):]
-        # the stepper's history arrays, as BDF2Stepper._rescue rebuilds them
-        st._q[:] = q
-        st._x[:] = positions(tangents(q), ph.dL)
-        st._xm1[:] = positions(tangents(qp), ph.dL)
-        st._zp[:] = 0.0
-        st._zp[st._zmap] = z[st._zmap]
-        st._zpm1[:] = rs._zpm1
-        st._H[:] = rs._H
-        st._info[:] = rs._info
-        st.k, st.time, st._ready = rs.k, rs.time, True
+        up = np.asarray(h[n:], dtype=float)
+        self.run.stepper.set_history(np.asarray(h[:n], dtype=float), up,
+                                     reference.run.stepper)
         self._prev = up.copy()
 
 
@@ -374,7 +357,7 @@ def classify_run(
     # the exponent of the same window, weighed in as classify_samples would
     # (the window's last maps are complete: n_samples sample_every >= window m)
     lyap = lock.result()
-    res = _redecide(res, lyap, **{k: v for k, v in kw.items() if k in (
+    res = redecide(res, lyap, **{k: v for k, v in kw.items() if k in (
         "fp_tol", "rw_tol", "section_tol", "max_period", "discrete_power", "lyap_tol")})
     extra.update(lyapunov_map_steps=m, lyapunov_maps=n_maps, lyapunov_skip_maps=window - n_maps,
                  lyapunov_method="lockstep", t_end=run.t)

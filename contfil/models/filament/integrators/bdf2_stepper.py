@@ -315,6 +315,34 @@ class BDF2Stepper:
             )
         )
 
+    def set_history(self, u: Array, u_prev: Array, like: BDF2Stepper) -> None:
+        """Put the stepper at the state pair ``(u_k, u_{k-1})`` (model states,
+        ``dt`` apart), with the loads, carried inverse Jacobian, step index
+        and time of ``like`` (a stepper of the same physics and step).
+
+        BDF2's map acts on that pair: positions at k and k-1 and the increment
+        ``log(q^k q^{k-1*})`` (the same history :meth:`_rescue` rebuilds), so a
+        companion trajectory perturbed in both is one BDF2 step of the pair,
+        not a restart by backward Euler (the Lyapunov lockstep, decisions 39).
+        """
+        ph = self.phys
+        u, u_prev = np.asarray(u, dtype=float), np.asarray(u_prev, dtype=float)
+        q = frames_from_state(embed_planar(u) if ph.planar else u)
+        qp = frames_from_state(embed_planar(u_prev) if ph.planar else u_prev)
+        N = ph.N
+        z = np.zeros(6 * N)
+        z[: 3 * (N - 1)] = _relative_rotvec(q[1:], qp[1:]).ravel()
+        z[3 * (N - 1):] = like._zp[3 * (N - 1):]
+        self._q[:] = q
+        self._x[:] = positions(tangents(q), ph.dL)
+        self._xm1[:] = positions(tangents(qp), ph.dL)
+        self._zp[:] = 0.0
+        self._zp[self._zmap] = z[self._zmap]
+        self._zpm1[:] = like._zpm1
+        self._H[:] = like._H
+        self._info[:] = like._info
+        self.k, self.time, self._ready = like.k, like.time, True
+
     def _rescue(self) -> Array | None:
         """Redo the failed step ``k -> k+1`` as ``2^m`` sub-steps (m = 1..max_halvings).
 
