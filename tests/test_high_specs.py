@@ -228,3 +228,27 @@ def test_tip_ff_beating_beyond_f_1000_is_not_annihilated_and_restabilises() -> N
     assert all(pt.n_unstable == 0 for pt in br.points if sc.point.p < pt.p < bpc.point.p)
     assert all(pt.n_unstable == 4 for pt in br.points if pt.p < sc.point.p)
     assert br.points[-1].p > 2328.0
+
+
+def test_dis_ff_in_radau_every_special_point_of_beating_has_an_error_estimate() -> None:
+    """Stored ``dis_ff_high_radau``: beating's pitchfork to bent-beating, its
+    annihilation at a fold of cycles, the torus of its unstable partner
+    (reported by the torus event since decisions 40, not as a stability
+    change) and two more pitchforks, each with a p_error from a refined
+    problem; bent-beating's torus; the chaotic state joined to it."""
+    g = load_run_graph(ROOT / "branches" / "data" / "dis_ff_high_radau")
+    on_b0 = {g.label(s): g.special_point(s) for s in g.special_points_on("B0")}
+    assert {k: sp.kind for k, sp in on_b0.items()} == {
+        "BPC1": "cycle_branch_point", "LPC1": "cycle_fold", "NS1": "torus",
+        "BPC2": "cycle_branch_point", "BPC3": "cycle_branch_point"}
+    for sp in on_b0.values():
+        assert abs(sp.data["p_error"]) < 0.01
+    assert abs(on_b0["BPC1"].point.p - 111.562) < 1e-3
+    assert abs(on_b0["LPC1"].point.p - 197.698) < 1e-2
+    ns1 = on_b0["NS1"]
+    assert abs(abs(complex(ns1.data["multiplier"])) - 1.0) < 1e-8
+    ns2 = g.special_point("NS2")
+    assert g.special_id("NS2") in g.special_points_on("B1") and ns2.kind == "torus"
+    assert abs(ns2.point.p - 175.03) < 0.01
+    (a,) = g.states_from("NS2")
+    assert g.state(a)["kind"] == "chaotic"
