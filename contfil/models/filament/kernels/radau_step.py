@@ -119,69 +119,30 @@ def stage_residual(
     Row for row :func:`.bdf2_residual.residual` with ``(a1, a2, b1, g) = (1, 0,
     1, 1/w_ii)`` and the stage history (module docstring), the same
     operations in the same order (bit for bit :func:`stage_residual_reference`),
-    with each stage's frames and positions formed once for its own rows and
-    the other stages' histories.
+    with each stage's frames, positions and velocities formed once for its own
+    rows and the other stages' histories; the rows are those of
+    :func:`stage_residual_prepared`.
     """
     s = Z.shape[0]
     N = qk.shape[0]
     dL = par[P_DL]
     Xs = np.empty((s, N, 3))
-    Ts = np.empty((s, N, 3))
-    Qs = np.empty((s, N, 4))
     Us = np.empty((s, 6 * N))
+    Vs = np.empty((s, N, 3))
+    Oms = np.empty((s, N, 3))
     q = np.empty((N, 4))
     for j in range(s):
         zf = full_unknowns(Z[j], zmap, scales[j], N)
         Us[j] = zf
         frames_at(zf, qk, q)
         t = tangents(q)
-        Qs[j] = q
-        Ts[j] = t
         Xs[j] = positions(t, dL)
-    rfull = np.empty(6 * N)
-    xh = np.empty((N, 3))
-    uh = np.zeros(3 * (N - 1))
-    u = np.zeros(3)
-    w = np.empty(3)
-    res = 0.0
-    for i in range(s):
-        for n in range(N):
-            for k in range(3):
-                xh[n, k] = xk[n, k]
-        for m in range(3 * (N - 1)):
-            uh[m] = 0.0
-        for j in range(s):
-            if j == i:
-                continue
-            wj = W[i, j] / W[i, i]
-            for n in range(N):
-                for k in range(3):
-                    xh[n, k] -= wj * (Xs[j, n, k] - xk[n, k])
-            for m in range(3 * (N - 1)):
-                uh[m] -= wj * Us[j, m]
-        zf = Us[i]
         Lam, Fc, Tc = unpack_loads(zf, N)
-        V, Om = velocities(Qs[i], Ts[i], Xs[i], Lam, Fc, Tc, par, flags)
-        gdt = (1.0 / W[i, i]) * dt
-        for n in range(N):
-            for k in range(3):
-                rfull[3 * n + k] = (Xs[i, n, k] - xh[n, k] - gdt * V[n, k]) / dL
-            if n == 0:
-                for k in range(3):
-                    rfull[3 * N + k] = -gdt * Om[0, k]
-            else:
-                for k in range(3):
-                    u[k] = zf[3 * (n - 1) + k]
-                    w[k] = Om[n, k]
-                di = dexp_inv(u, w)
-                for k in range(3):
-                    rfull[3 * N + 3 * n + k] = u[k] - uh[3 * (n - 1) + k] - gdt * di[k]
-        for m in range(F.shape[1]):
-            F[i, m] = rfull[rmap[m]]
-            a = abs(F[i, m])
-            if not a <= res:  # NaN propagates
-                res = a
-    return res
+        V, Om = velocities(q, t, Xs[j], Lam, Fc, Tc, par, flags)
+        Vs[j] = V
+        Oms[j] = Om
+    # the rows from the stages' positions, increments and velocities
+    return stage_residual_prepared(Z, Us, F, xk, dt, W, par, rmap, Xs, Vs, Oms)
 
 
 @njit(cache=True)
