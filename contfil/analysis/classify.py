@@ -42,6 +42,12 @@ Labels, tested in this order:
     frequencies; or the spectrum is discrete, two bases explain its leading
     peaks but not all (a further frequency), and the Lyapunov exponent, if
     computed, is not positive;
+``quasiperiodic``
+    a Lyapunov exponent was measured and is *resolved zero* (zero within
+    three errors, its upper bound below the spectrum's resolution rate
+    ``2 pi df``), though the spectrum is not discrete enough for the rules
+    above: a measured exponent that rules chaos out is not overruled by the
+    power off the peaks;
 ``chaotic``
     otherwise (broadband spectrum and many section points).
 """
@@ -804,4 +810,33 @@ def _label(
         # Section says many points but the spectrum one base: a slow drift or
         # a long period; call it by the spectrum.
         return "periodic", reasons + ["spectrum has one base frequency"]
+    zero = _resolved_zero_exponent(lyap, spectrum)
+    if zero is not None:
+        return "quasiperiodic", reasons + [zero]
     return "chaotic", reasons + ["broadband spectrum / many distinct section points"]
+
+
+def _resolved_zero_exponent(lyap: LyapunovResult | None,
+                            spectrum: SpectrumEvidence | None) -> str | None:
+    """The reason a measured exponent rules chaos out, or None.
+
+    The exponent is *resolved zero* when it is zero within three errors and
+    its upper bound ``lambda + 3 sigma`` lies below the spectrum's resolution
+    rate ``2 pi df``: decorrelation at a rate below that broadens no line
+    beyond one bin, so power off the detected peaks (weak lines under the
+    prominence cut, a slow line, a record that has not quite settled) is not
+    the broadband of chaos. A poorly resolved exponent (large error) decides
+    nothing and the spectrum keeps the last word (decisions 43)."""
+    if lyap is None or spectrum is None or spectrum.frequencies.size < 2:
+        return None
+    lam, err = float(lyap.exponent), float(lyap.error)
+    if not (np.isfinite(lam) and np.isfinite(err)):
+        return None
+    upper = lam + 3.0 * err
+    rate = 2.0 * np.pi * float(spectrum.frequencies[1])
+    if abs(lam) > 3.0 * err or upper >= rate:
+        return None
+    return (f"exponent resolved zero: {lam:.3g} +- {err:.2g}, upper bound {upper:.3g} below "
+            f"the spectrum's resolution rate 2 pi df = {rate:.3g}; the "
+            f"{1.0 - spectrum.discrete_fraction:.3f} of the power off the peaks is no chaos "
+            f"(weak or further lines, or a record not quite settled)")
