@@ -17,6 +17,7 @@ from contfil.analysis.classify import (
     integer_combinations,
     redecide,
 )
+from contfil.analysis.lyapunov import largest_lyapunov
 from contfil.errors import ContfilError
 
 # One cached integrator for all test systems (an integer picks the vector
@@ -134,6 +135,35 @@ def test_lorenz_chaotic_with_lyapunov() -> None:
     # Without the exponent, the broadband spectrum alone decides the same.
     res2 = classify_attractor(_rk4(LORENZ, h), [1.0, 1.0, 20.0], 30_000, h, transient=2000)
     assert res2.label == "chaotic", res2.reasons
+
+
+def test_exponent_is_measured_along_the_classified_trajectory() -> None:
+    """The generic entry measures the exponent on the trajectory it classifies
+    (decisions 43): the same number, bit for bit, as Benettin's method run
+    from the window's first state over the same steps, the last
+    ``lyapunov_steps`` averaged; and the classified states are those of the
+    run without the exponent. With more exponent steps than the window holds,
+    the window is averaged whole and the transient's tail aligns the vector."""
+    h, n, tr = 0.01, 5000, 500
+    step = _rk4(LORENZ, h)
+    u0 = np.array([1.0, 1.0, 20.0])
+    bare = classify_attractor(step, u0, n, h, transient=tr)
+    res = classify_attractor(step, u0, n, h, transient=tr, lyapunov_steps=2000)
+    np.testing.assert_array_equal(res.state_mean, bare.state_mean)
+    np.testing.assert_array_equal(res.final_state, bare.final_state)
+    ut = u0.copy()
+    for _ in range(tr):
+        ut = step(ut)
+    ref = largest_lyapunov(step, ut, 2000, h, transient=n - 2000)
+    assert res.lyapunov is not None
+    assert res.lyapunov.exponent == ref.exponent
+    np.testing.assert_array_equal(res.lyapunov.block_means, ref.block_means)
+    assert res.lyapunov.transient == n - 2000 and res.lyapunov.n_steps == 2000
+    whole = classify_attractor(step, u0, n, h, transient=tr, lyapunov_steps=10 * n)
+    ref_w = largest_lyapunov(step, u0, n, h, transient=tr)
+    assert whole.lyapunov is not None and whole.lyapunov.exponent == ref_w.exponent
+    np.testing.assert_array_equal(whole.state_mean, bare.state_mean)
+    assert 0.5 < whole.lyapunov.exponent < 1.4  # Lorenz: 0.9056 (a short window)
 
 
 def test_rotating_wave_flagged_by_invariant() -> None:

@@ -20,7 +20,7 @@ A long run (up to ~10^6 steps) is reduced on the fly to bounded evidence:
   run averages more segments instead of decimating harder (which would alias
   the higher frequencies into false peaks);
 - optionally the largest Lyapunov exponent (:mod:`contfil.analysis.lyapunov`)
-  continued from the final state.
+  measured along the classified trajectory itself (:func:`classify_attractor`).
 
 Labels, tested in this order:
 
@@ -62,7 +62,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.signal import find_peaks, get_window
 
-from contfil.analysis.lyapunov import LyapunovResult, largest_lyapunov
+from contfil.analysis.lyapunov import GrowthSums, LyapunovResult, TangentCarrier
 from contfil.errors import NonFiniteError, SpecError
 
 __all__ = [
@@ -650,9 +650,14 @@ def classify_attractor(
 ) -> AttractorClass:
     """Run ``step`` for ``transient + n_steps`` steps and classify the attractor.
 
-    ``lyapunov_steps > 0`` also runs :func:`largest_lyapunov` for that many
-    steps from the final state (with ``tangent`` if given, else finite
-    differences of ``step``). Other keywords as in :func:`classify_samples`.
+    ``lyapunov_steps > 0`` also measures the largest Lyapunov exponent
+    (Benettin; with ``tangent`` if given, else a two-trajectory finite
+    difference of ``step``) *along the classified trajectory*: the exponent
+    averages the last ``m = min(lyapunov_steps, n_steps)`` steps of the
+    classified window; the window's earlier steps align the tangent vector,
+    or, when ``m = n_steps``, the last ``min(transient, n_steps // 10)`` steps
+    of the transient do. The classified states are those of the run without
+    the exponent, bit for bit. Other keywords as in :func:`classify_samples`.
     Memory stays bounded for any ``n_steps``.
     """
     u = np.array(u0, dtype=float).ravel()
@@ -661,24 +666,38 @@ def classify_attractor(
     if n_steps < 16 or transient < 0:
         raise SpecError(f"classify: need n_steps >= 16, transient >= 0; got {n_steps}, "
                         f"{transient}")
+    m = min(int(lyapunov_steps), n_steps) if lyapunov_steps > 0 else 0
+    align_window = n_steps - m
+    align_transient = min(transient, n_steps // 10) if m and not align_window else 0
+    n_blocks = 10
+    if m and m < n_blocks:
+        raise SpecError(f"classify: lyapunov_steps must be >= {n_blocks}, got {lyapunov_steps}")
+    carrier = None
     for k in range(transient):
-        u = np.asarray(step(u), dtype=float)
+        if carrier is None and m and k >= transient - align_transient:
+            carrier = TangentCarrier(step, u, tangent=tangent)
+        u = (carrier.advance(u, k) if carrier is not None
+             else np.asarray(step(u), dtype=float))
         if not np.all(np.isfinite(u)):
             raise NonFiniteError(f"classify: state is not finite at transient step {k}")
-    final: list[Vec] = [u]
+    if m and carrier is None:
+        carrier = TangentCarrier(step, u, tangent=tangent)
+    sums = GrowthSums(m, dt, n_blocks, 1000) if m else None
 
     def gen() -> Iterable[Vec]:
-        v = final[0]
-        for _ in range(n_steps):
-            v = np.asarray(step(v), dtype=float)
-            final[0] = v
+        v = u
+        for k in range(n_steps):
+            if carrier is not None and sums is not None and sums.k < m:
+                v = carrier.advance(v, transient + k)
+                if k >= align_window:
+                    sums.add(carrier.log_growth)
+            else:
+                v = np.asarray(step(v), dtype=float)
             yield v
 
-    lyap = None
     res = classify_samples(gen(), dt, n_steps, **kwargs)
-    if lyapunov_steps > 0:
-        lyap = largest_lyapunov(step, final[0], lyapunov_steps, dt, tangent=tangent,
-                                n_blocks=10)
+    if sums is not None and carrier is not None:
+        lyap = sums.result(align_window + align_transient, carrier.method, carrier.d)
         lyap_kwargs = {k: v for k, v in kwargs.items() if k in (
             "fp_tol", "rw_tol", "section_tol", "max_period", "discrete_power", "lyap_tol")}
         res = redecide(res, lyap, **lyap_kwargs)

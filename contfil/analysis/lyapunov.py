@@ -44,6 +44,8 @@ __all__ = [
     "DecimatedHistory",
     "LockstepSystem",
     "LockstepLyapunov",
+    "TangentCarrier",
+    "GrowthSums",
     "largest_lyapunov",
 ]
 
@@ -205,54 +207,91 @@ def largest_lyapunov(
         )
     if transient < 0 or not (np.isfinite(dt) and dt > 0):
         raise SpecError(f"largest_lyapunov: need transient >= 0 and dt > 0, got {transient}, {dt}")
-    if v0 is None:
-        v = np.random.default_rng(seed).standard_normal(u.size)
-    else:
-        v = np.array(v0, dtype=float)
-        if v.shape != u.shape:
-            raise SpecError(f"largest_lyapunov: v0 shape {v.shape} != u0 shape {u.shape}")
-    nv = np.linalg.norm(v)
-    if not (np.isfinite(nv) and nv > 0):
-        raise SpecError("largest_lyapunov: v0 must be finite and non-zero")
-    v = v / nv
-    if tangent is None:
-        d = 1e-7 * max(1.0, float(np.linalg.norm(u))) if fd_distance is None else fd_distance
-        if not (np.isfinite(d) and d > 0):
-            raise SpecError(f"largest_lyapunov: fd_distance must be > 0, got {fd_distance}")
-        method = "finite_difference"
-    else:
-        d = float("nan")
-        method = "tangent"
+    carrier = TangentCarrier(step, u, tangent=tangent, v0=v0, fd_distance=fd_distance,
+                             seed=seed)
+    for k in range(transient):
+        u = carrier.advance(u, k)
 
-    def advance(u: NDArray, v: NDArray, k: int) -> tuple[NDArray, NDArray, float]:
-        """One step; returns u', unit v', log growth of v."""
-        if tangent is not None:
-            un, w = tangent(u, v)
+    sums = GrowthSums(n_steps, dt, n_blocks, history_size)
+    for k in range(1, n_steps + 1):
+        u = carrier.advance(u, transient + k)
+        sums.add(carrier.log_growth)
+    return sums.result(transient, carrier.method, carrier.d)
+
+
+class TangentCarrier:
+    """Benettin's unit tangent vector, carried along a trajectory step by step.
+
+    :meth:`advance` takes the trajectory one step from ``u`` (the state the
+    vector is attached to) and returns the next state, with the vector's log
+    growth over that step in :attr:`log_growth`. The next state is always
+    ``step(u)`` (or the tangent map's image), so an owner that samples the
+    returned states classifies the very trajectory the exponent is measured on.
+
+    Parameters
+    ----------
+    step, tangent, v0, fd_distance, seed:
+        As in :func:`largest_lyapunov`; ``u0`` sets the shape and the default
+        finite-difference distance ``1e-7 max(1, |u0|)``.
+    """
+
+    def __init__(
+        self,
+        step: StepMap | None,
+        u0: NDArray[np.float64],
+        *,
+        tangent: TangentMap | None = None,
+        v0: ArrayLike | None = None,
+        fd_distance: float | None = None,
+        seed: int = 0,
+    ) -> None:
+        if step is None and tangent is None:
+            raise SpecError("largest_lyapunov: give step or tangent")
+        if v0 is None:
+            v = np.random.default_rng(seed).standard_normal(u0.size)
+        else:
+            v = np.array(v0, dtype=float)
+            if v.shape != u0.shape:
+                raise SpecError(f"largest_lyapunov: v0 shape {v.shape} != u0 shape {u0.shape}")
+        nv = np.linalg.norm(v)
+        if not (np.isfinite(nv) and nv > 0):
+            raise SpecError("largest_lyapunov: v0 must be finite and non-zero")
+        self.v = v / nv
+        self.step, self.tangent = step, tangent
+        if tangent is None:
+            d = (1e-7 * max(1.0, float(np.linalg.norm(u0))) if fd_distance is None
+                 else fd_distance)
+            if not (np.isfinite(d) and d > 0):
+                raise SpecError(f"largest_lyapunov: fd_distance must be > 0, got {fd_distance}")
+            self.d, self.method = float(d), "finite_difference"
+        else:
+            self.d, self.method = float("nan"), "tangent"
+        self.log_growth = 0.0
+
+    def advance(self, u: NDArray[np.float64], k: int) -> NDArray[np.float64]:
+        """The state after ``u`` (step index ``k`` for messages); the unit
+        vector moves along and :attr:`log_growth` is its growth's log."""
+        if self.tangent is not None:
+            un, w = self.tangent(u, self.v)
             un = _finite(un, "state", k)
             w = _finite(w, "tangent vector", k)
         else:
-            un = _finite(step(u), "state", k)
+            assert self.step is not None
+            un = _finite(self.step(u), "state", k)
             # Two-trajectory difference: the companion sits at u + d v.
-            w = (_finite(step(u + d * v), "companion state", k) - un) / d
+            w = (_finite(self.step(u + self.d * self.v), "companion state", k) - un) / self.d
         g = float(np.linalg.norm(w))
         if g == 0.0:
             raise ContfilError(
                 f"largest_lyapunov: tangent vector collapsed to zero at step {k} "
                 "(exponent is -inf)"
             )
-        return un, w / g, np.log(g)
-
-    for k in range(transient):
-        u, v, _ = advance(u, v, k)
-
-    sums = _GrowthSums(n_steps, dt, n_blocks, history_size)
-    for k in range(1, n_steps + 1):
-        u, v, lg = advance(u, v, transient + k)
-        sums.add(lg)
-    return sums.result(transient, method, d)
+        self.v = w / g
+        self.log_growth = float(np.log(g))
+        return un
 
 
-class _GrowthSums:
+class GrowthSums:
     """Running sum, block sums and decimated running average of log growths."""
 
     def __init__(self, n_steps: int, dt: float, n_blocks: int, history_size: int) -> None:
@@ -381,7 +420,7 @@ class LockstepLyapunov:
         self.d = float(d)
         self.steps = 0  # steps since the start
         self.maps = 0  # maps completed
-        self._sums = _GrowthSums(self.n_maps, dt * self.map_steps, n_blocks, history_size)
+        self._sums = GrowthSums(self.n_maps, dt * self.map_steps, n_blocks, history_size)
         companion.follow(reference, h + self.d * v / nv)
 
     @property
