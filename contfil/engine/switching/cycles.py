@@ -30,6 +30,16 @@ the bifurcation. Folds need no switching: pseudo-arclength passes them.
 - Period doubling: ``u* + ε v`` (eigenvector of ``μ = -1``), period ``2T``
   (:func:`cycles_from_period_doubling`).
 
+Strongly unstable bases. A Hopf point on an already unstable equilibrium
+(the filament's upright state at its higher double Hopf points has
+``Re λ T ≈ 15``) seeds an orbit whose unstable directions amplify the
+seed's error by ``e^{Re λ T}`` over one period: single shooting's Newton
+leaves the linear regime and collapses. The Hopf and standing-wave switches
+then shoot with ``m`` segments (:func:`hopf_segments`: the growth over one
+segment at most :data:`HOPF_SEGMENT_GROWTH`), seeded along the linear mode
+``u* + ε Re(v̂ e^{iωt_i})`` at the segment starts; ``m = 1`` is the
+single-shooting seed, unchanged (decisions 45).
+
 Method. Cycles of plain ``f(u, p)`` models are computed by orthogonal
 collocation (:class:`~contfil.engine.problems.collocation.CollocationProblem`),
 of models with their own time-stepper (``model.flow``) by shooting
@@ -87,6 +97,8 @@ __all__ = [
     "cycles_leaving_subspace",
     "x_from_point",
     "cycle_method",
+    "hopf_segments",
+    "HOPF_SEGMENT_GROWTH",
 ]
 
 METHODS = ("collocation", "shooting")
@@ -259,6 +271,61 @@ def _unit_real(v: NDArray) -> Array:
     return v / np.linalg.norm(v)
 
 
+#: Largest growth of a perturbation over one shooting segment that a Hopf
+#: seed takes (decisions 45): beyond it the seed's error in the base state's
+#: unstable directions leaves Newton's linear regime.
+HOPF_SEGMENT_GROWTH = 100.0
+
+
+def hopf_segments(hopf: SpecialPoint, period: float,
+                  growth: float = HOPF_SEGMENT_GROWTH) -> int:
+    """Shooting segments for a cycle seeded at ``hopf``: the fewest ``m`` with
+    ``exp(max Re λ · period / m) <= growth``, ``λ`` the base equilibrium's
+    eigenvalues stored at the point (1 without an unstable one)."""
+    ev = hopf.point.eigenvalues
+    if ev is None or np.size(ev) == 0:
+        return 1
+    rate = float(np.max(np.real(np.asarray(ev))))
+    if not np.isfinite(rate) or rate <= 0.0:
+        return 1
+    return max(1, int(np.ceil(rate * float(period) / np.log(growth))))
+
+
+def _segments_of(hopf: SpecialPoint, period: float, problem_kw: dict[str, Any]) -> int:
+    """The caller's ``segments`` (taken out of ``problem_kw``), else
+    :func:`hopf_segments`."""
+    m = problem_kw.pop("segments", None)
+    return hopf_segments(hopf, period) if m is None else int(m)
+
+
+def _mode_starts(u_s: Array, v: NDArray, om: float, e: float, period: float, m: int,
+                 proj: Any = None) -> list[Array]:
+    """Segment starts ``u* + e Re(v̂ e^{iω t_i})``, ``t_i = i T/m``,
+    ``v̂ = v/|Re v|`` (the linearised orbit; ``t_0`` gives the single seed),
+    mapped by ``proj`` into a subspace's reduced state when given."""
+    vh = v / np.linalg.norm(v.real)
+    out = []
+    for i in range(m):
+        u = u_s + e * np.real(vh * np.exp(1j * om * (i * period / m)))
+        out.append(np.asarray(proj(u), dtype=float) if proj is not None else u)
+    return out
+
+
+def _multiple_shooting_start(pb: MultipleShootingProblem, starts: list[Array], u_ref: Array,
+                             d: Array, e: float, p_s: float,
+                             tail: list[float]) -> tuple[Array, float, Array, dict[str, Any]]:
+    """Solve the first orbit of an ``m``-segment problem from mode starts:
+    the amplitude ``<d̂, u_0 - u_ref> = e`` on the first segment's state."""
+    m = len(starts)
+    pb.set_reference(starts[0], p_s)
+    x_star = np.concatenate([np.tile(u_ref, m), tail])
+    xg = np.concatenate(starts + [np.asarray(tail, dtype=float)])
+    dvec = np.zeros_like(xg)
+    dvec[:d.size] = d
+    x1, p1, info = solve_with_amplitude(pb, xg, p_s, x_star, dvec, e)
+    return x1, p1, x_star, info
+
+
 def cycles_from_hopf(
     model: Model,
     param: str,
@@ -310,17 +377,24 @@ def cycles_from_hopf(
             "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "method": "collocation",
             "side": float(np.sign(p1 - p_s)), "newton_iterations": info["iterations"],
             "residual_evals": info["residual_evals"]})
-    pb = PeriodicOrbitProblem(model, param, base, steps=100 if steps is None else steps,
-                              **problem_kw)
+    m = _segments_of(hopf, T0, problem_kw)
+    steps = 100 if steps is None else steps
     u0 = u_s + e * d
-    pb.set_reference(u0, p_s)
-    x_star = np.concatenate([u_s, [T0]])
-    dx = np.concatenate([d, [0.0]])
-    x1, p1, info = solve_with_amplitude(pb, np.concatenate([u0, [T0]]), p_s, x_star, dx, e)
+    if m > 1:
+        pb = MultipleShootingProblem(model, param, base, segments=m, steps=steps,
+                                     **problem_kw)
+        x1, p1, x_star, info = _multiple_shooting_start(
+            pb, _mode_starts(u_s, v, om, e, T0, m), u_s, d, e, p_s, [T0])
+    else:
+        pb = PeriodicOrbitProblem(model, param, base, steps=steps, **problem_kw)
+        pb.set_reference(u0, p_s)
+        x_star = np.concatenate([u_s, [T0]])
+        dx = np.concatenate([d, [0.0]])
+        x1, p1, info = solve_with_amplitude(pb, np.concatenate([u0, [T0]]), p_s, x_star, dx, e)
     return _start(pb, (x1, p1), np.concatenate([x_star, [p_s]]), {
         "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "method": "shooting",
-        "side": float(np.sign(p1 - p_s)), "newton_iterations": info["iterations"],
-        "residual_evals": info["residual_evals"]})
+        "segments": m, "side": float(np.sign(p1 - p_s)),
+        "newton_iterations": info["iterations"], "residual_evals": info["residual_evals"]})
 
 
 def _o2_modes(model: Model, hopf: SpecialPoint, symmetry_index: int) -> tuple[dict, Array]:
@@ -466,18 +540,32 @@ def standing_wave_from_double_hopf(
             "method": "collocation", "side": float(np.sign(p1 - p_s)),
             "newton_iterations": info["iterations"]})
     steps = 100 if steps is None else steps
+    m = _segments_of(hopf, T0, problem_kw)
+    pb: PeriodicOrbitProblem
     if subspace is not None:
         sub = model.symmetries.invariant_subspaces[subspace]
-        pb: PeriodicOrbitProblem = PeriodicOrbitProblem(model, param, base, steps=steps,
-                                                        subspace=subspace, **problem_kw)
         proj = lambda w: np.asarray(sub.project(w), dtype=float)  # noqa: E731
         ur0, ur_s = proj(u0), proj(u_s)
         dr = proj(u_s + d) - ur_s
-        pb.set_reference(ur0, p_s)
-        x_star = np.concatenate([ur_s, [T0]])
-        xg = np.concatenate([ur0, [T0]])
         e_r = float(_unit_real(dr) @ (ur0 - ur_s))
-        x1, p1, info = solve_with_amplitude(pb, xg, p_s, x_star, np.concatenate([dr, [0.0]]), e_r)
+        if m > 1:
+            pb = MultipleShootingProblem(model, param, base, segments=m, steps=steps,
+                                         subspace=subspace, **problem_kw)
+            x1, p1, x_star, info = _multiple_shooting_start(
+                pb, _mode_starts(u_s, s, om, e, T0, m, proj), ur_s, dr, e_r, p_s, [T0])
+        else:
+            pb = PeriodicOrbitProblem(model, param, base, steps=steps, subspace=subspace,
+                                      **problem_kw)
+            pb.set_reference(ur0, p_s)
+            x_star = np.concatenate([ur_s, [T0]])
+            xg = np.concatenate([ur0, [T0]])
+            x1, p1, info = solve_with_amplitude(pb, xg, p_s, x_star,
+                                                np.concatenate([dr, [0.0]]), e_r)
+    elif m > 1:
+        pb = RelativeMultipleShootingProblem(model, param, base, segments=m, steps=steps,
+                                             symmetry_index=symmetry_index, **problem_kw)
+        x1, p1, x_star, info = _multiple_shooting_start(
+            pb, _mode_starts(u_s, s, om, e, T0, m), u_s, d, e, p_s, [T0, 0.0])
     else:
         pb = RelativePeriodicOrbitProblem(model, param, base, steps=steps,
                                           symmetry_index=symmetry_index, **problem_kw)
@@ -487,7 +575,8 @@ def standing_wave_from_double_hopf(
                                             np.concatenate([d, [0.0, 0.0]]), e)
     return _start(pb, (x1, p1), np.concatenate([x_star, [p_s]]), {
         "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "subspace": subspace,
-        "side": float(np.sign(p1 - p_s)), "newton_iterations": info["iterations"]})
+        "segments": m, "side": float(np.sign(p1 - p_s)),
+        "newton_iterations": info["iterations"]})
 
 
 def x_from_point(problem: Problem, sp: SpecialPoint) -> Array:
