@@ -363,11 +363,13 @@ class Continuation:
         pb, s, n = self.problem, self.settings, self.n
         X0, tau0 = prev.X, prev.ctx.tangent
         p = float(X0[-1])
+        moved = False
         for shift in REPHASE_SHIFTS:
             try:
                 got = pb.rephase(X0[:-1], p, shift)
                 if got is None:
                     break
+                moved = True
                 x1, keep = got
                 X1, info = self.pa.solve(np.append(x1, p), e_last(n + 1), p)
                 if not (info.converged and np.all(np.isfinite(X1))):
@@ -388,7 +390,8 @@ class Continuation:
             self.stats["rephased"] += 1
             self.ds = s.ds
             return True
-        pb.accept(X0[:-1], p)
+        if moved:
+            pb.accept(X0[:-1], p)  # the references back at the old origin
         return False
 
     def _land_on_bound(self, X0: Array, tau0: Array, X: Array, ctx: EventContext,
