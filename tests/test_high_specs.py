@@ -252,3 +252,34 @@ def test_dis_ff_in_radau_every_special_point_of_beating_has_an_error_estimate() 
     assert abs(ns2.point.p - 175.03) < 0.01
     (a,) = g.states_from("NS2")
     assert g.state(a)["kind"] == "chaotic"
+
+
+def test_tip_ff_beating_goes_past_the_chart_cut_at_2328_unannihilated_to_3000() -> None:
+    """Stored ``tip_ff_high_radau3`` (session 12): beating restarted where
+    ``tip_ff_high_radau2`` stopped (f = 2328.72). There the phase origin had
+    one segment's rotation vector at |U| = π, the cut of the state's chart
+    (decisions 42); the engine moved the origin along the orbit (to
+    max |U| ≈ 1.04) and the branch goes on, the same orbit (period and mean
+    bending energy continuous), to f = 3000 with no fold of cycles and no
+    other special point: one unstable (out-of-plane) multiplier throughout,
+    the period falling monotonically."""
+    data = ROOT / "branches" / "data"
+    old = load_run_graph(data / "tip_ff_high_radau2").branch("B0").points[-1]
+    g = load_run_graph(data / "tip_ff_high_radau3")
+    assert g.special_points_on("B0") == []
+    pts = g.branch("B0").points
+    assert pts[0].p == old.p and pts[-1].p == 3000.0
+    np.testing.assert_array_equal(pts[0].u, old.u)
+
+    def max_rotation(pt) -> float:  # noqa: ANN001
+        return float(np.linalg.norm(pt.u.reshape(-1, 3), axis=1).max())
+
+    assert abs(max_rotation(pts[0]) - np.pi) < 1e-4
+    assert all(max_rotation(pt) < 1.2 for pt in pts[1:])
+    T = np.array([pt.extra["period"] for pt in pts])
+    E = np.array([pt.observables["mean_bending_energy"] for pt in pts])
+    assert abs(T[1] - T[0]) / T[0] < 1e-3 and abs(E[1] - E[0]) / E[0] < 1e-3
+    assert np.all(np.diff(T) < 0.0) and np.all(np.diff(E) > 0.0)
+    assert all(pt.n_unstable == 1 for pt in pts)
+    lead = [float(np.max(np.abs(pt.eigenvalues[~pt.trivial]))) for pt in pts]
+    assert lead[0] == pytest.approx(1.1585, abs=1e-3) and lead[-1] > 30.0

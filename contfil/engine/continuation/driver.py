@@ -55,6 +55,11 @@ __all__ = ["Continuation", "ContinuationSettings", "ContinuationState", "continu
 
 Array = NDArray[np.float64]
 
+#: Phase-origin moves (fractions of the period) tried, in turn, when a step
+#: fails at ``ds_min`` (:meth:`Continuation._rephase`); the first move
+#: whose corrected origin converges is kept.
+REPHASE_SHIFTS = (0.25, 0.5, 0.75)
+
 
 class Continuation:
     """Pseudo-arclength continuation of ``problem`` from ``(x0, p0)``.
@@ -136,7 +141,10 @@ class Continuation:
         self._prev: Accepted | None = None
         self._restored: ContinuationState | None = None
         self._done = False
-        self.stats = {"steps_rejected": 0, "newton_failures": 0, "localisations": 0}
+        self.stats = {"steps_rejected": 0, "newton_failures": 0, "localisations": 0,
+                      "rephased": 0}
+        #: the accepted point a rephase was last tried from (once per point)
+        self._rephased: Accepted | None = None
 
     # ------------------------------------------------------------ state
     @classmethod
@@ -334,6 +342,58 @@ class Continuation:
             cls = NonFiniteStepFailure if cause == "non-finite" else StepFailure
             raise cls(msg, cause=cause, param=self.branch.param, p=float(X0[-1]))
 
+    def _rephase(self) -> bool:
+        """Move the phase origin of the last accepted solution along it
+        (:meth:`Problem.rephase`, by each of :data:`REPHASE_SHIFTS` in turn)
+        after a step failed at ``ds_min``, once per accepted point: the
+        moved point is corrected at its own ``p``, its tangent oriented by the
+        unknowns the move keeps (period, parameter), and the step restarts
+        there at the run's initial ``ds``. ``False`` (the references put
+        back) when the problem has no phase or no moved origin converges.
+
+        Why (docs/decisions.md 42): the phase origin of a periodic orbit is
+        free, but a model's state coordinates may have a cut (a rotation
+        vector returned with ``|U| <= pi``) that the origin runs into as the
+        parameter moves; past the cut ``φ_T(u) - u`` jumps by ``2 pi`` and
+        no step converges, however short."""
+        prev = self._prev
+        if prev is None or self._rephased is prev:
+            return False
+        self._rephased = prev
+        pb, s, n = self.problem, self.settings, self.n
+        X0, tau0 = prev.X, prev.ctx.tangent
+        p = float(X0[-1])
+        moved = False
+        for shift in REPHASE_SHIFTS:
+            try:
+                got = pb.rephase(X0[:-1], p, shift)
+                if got is None:
+                    break
+                moved = True
+                x1, keep = got
+                X1, info = self.pa.solve(np.append(x1, p), e_last(n + 1), p)
+                if not (info.converged and np.all(np.isfinite(X1))):
+                    continue
+                orient = np.zeros(n + 1)
+                orient[:-1][keep] = tau0[:-1][keep]
+                orient[-1] = tau0[-1]
+                ctx = self.pa.context(X1, orient)
+            except (ConvergenceError, DomainError, NonFiniteError, np.linalg.LinAlgError):
+                continue
+            pb.accept(X1[:-1], p)
+            rec = Accepted(X1, ctx, prev.point)
+            if self.events:
+                rec.values = self._event_values(ctx)
+                for ev in self.events:
+                    rec.values[ev.name] = ev.accepted(ctx, rec.values[ev.name])
+            self._prev = self._rephased = rec
+            self.stats["rephased"] += 1
+            self.ds = s.ds
+            return True
+        if moved:
+            pb.accept(X0[:-1], p)  # the references back at the old origin
+        return False
+
     def _land_on_bound(self, X0: Array, tau0: Array, X: Array, ctx: EventContext,
                        info: NewtonInfo) -> tuple[Array, EventContext, NewtonInfo, str | None]:
         """If the step left ``[p_min, p_max]``, the point exactly on the bound."""
@@ -389,7 +449,16 @@ class Continuation:
         evals0 = pb.rhs_evals or 0
         X0, tau0 = prev.X, prev.ctx.tangent
         while True:
-            X, ctx, info = self._correct(X0, tau0)
+            try:
+                X, ctx, info = self._correct(X0, tau0)
+            except StepFailure:
+                # At ds_min: the phase origin may sit on a cut of the state
+                # coordinates; retry once from another origin on the orbit.
+                if not self._rephase():
+                    raise
+                prev = self._prev
+                X0, tau0 = prev.X, prev.ctx.tangent
+                continue
             try:
                 X, ctx, info, stop = self._land_on_bound(X0, tau0, X, ctx, info)
                 break

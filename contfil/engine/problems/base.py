@@ -201,6 +201,19 @@ class Problem(ABC):
         """Restore what :meth:`restart_data` returned. Default: nothing."""
         return None
 
+    def rephase(self, x: Array, p: float, shift: float) -> tuple[Array, NDArray[np.bool_]] | None:
+        """The same solution with its phase origin moved along it by
+        ``shift`` (a fraction of its period), the problem's phase references
+        moved there, and the mask of the unknowns the move leaves unchanged
+        (the period, a drift: what orients the tangent there); ``None`` when
+        a solution has no phase origin to move (the default: equilibria).
+
+        The driver calls it when a step fails at ``ds_min`` (docs/decisions.md
+        42): the state coordinates of a model may have a cut (an angle or a
+        rotation vector returned in ``(-pi, pi]``) that a branch's phase
+        origin runs into, while the rest of the orbit is clear of it."""
+        return None
+
     def refine(self, factor: int = 2) -> Problem | None:
         """The same problem on a discretisation ``factor`` times finer (time
         steps, mesh intervals), with the same phase references, or ``None``

@@ -411,6 +411,28 @@ class PeriodicOrbitProblem(Problem):
         self.set_reference(x[: self.dim], p)
         self.period_scale = self.split(x)[1]
 
+    def rephase(self, x: Array, p: float, shift: float) -> tuple[Array, NDArray[np.bool_]] | None:
+        """The orbit with its phase origin moved forward by ``shift`` periods,
+        ``u -> φ_{shift T}(u)``; the period (and a drift: ``exp(θL)`` commutes
+        with the flow) unchanged. The phase reference moves to the new origin
+        and the carried Jacobian is dropped (it belongs to the old
+        coordinates). ``None`` for multiple shooting (its segments are not one
+        state)."""
+        if self.n != self.dim + self.n_extra:
+            return None
+        u, T = self.split(x)
+        self._check_period(T)
+        u1 = np.asarray(self.ops.flow(u, self.params_at(p), float(shift) * T), dtype=float)
+        if not np.all(np.isfinite(u1)):
+            return None
+        x1 = np.array(x, dtype=float, copy=True)
+        x1[: self.dim] = u1
+        self.set_reference(u1, p)
+        self._rec = self._J = None
+        keep = np.zeros(self.n, dtype=bool)
+        keep[self.dim :] = True
+        return x1, keep
+
     def restart_data(self) -> dict[str, Array]:
         """The phase reference (``u_ref``, ``f_ref``; ``l_ref`` with drift). The
         period floor's reference is not stored: a resumed run takes it from
