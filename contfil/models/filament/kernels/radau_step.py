@@ -469,6 +469,15 @@ def newton_blocks_prepared(
     for j in range(nu):
         cmask[zmap[j] % 3] = True
     G = np.empty((nz, nu))
+    # dexp(u) is block diagonal by segments: column b of G Br sums the (at
+    # most 3) columns j of the same segment, G[:, j] B[seg, c_j, c_b]
+    bn = np.zeros(nu, dtype=np.int64)
+    bj = np.empty((nu, 3), dtype=np.int64)
+    for b in range(nu):
+        for j in range(nu):
+            if zmap[j] // 3 == zmap[b] // 3:
+                bj[b, bn[b]] = j
+                bn[b] += 1
     for i in range(s):
         zf = Zf[i]
         gdt = dt / W[i, i]
@@ -500,13 +509,18 @@ def newton_blocks_prepared(
                             if b >= 0:
                                 acc += A[n - 1, k, kk] * Wc[b, zmap[j]]
                         G[a, j] = -gdt * acc
-        Br = _reduced_block(B, zmap, nu)
-        Ju = G @ Br
-        for a in range(nz):
-            for b in range(nu):
-                Jd[i, a, b] = Ju[a, b]
+        for b in range(nu):
+            sb, cb = zmap[b] // 3, zmap[b] % 3
+            nb = bn[b]
+            for a in range(nz):
+                acc = 0.0
+                for p in range(nb):
+                    j = bj[b, p]
+                    acc += G[a, j] * B[sb, zmap[j] % 3, cb]
+                Jd[i, a, b] = acc
         add_orientation_u(Jd[i], zf, Oms[i], zmap, rinv, nu, gdt)
-        AB = Arm @ Br
+        # the kinematic columns as before (bit for bit the tangent's, tested)
+        AB = Arm @ _reduced_block(B, zmap, nu)
         for a in range(nz):
             for b in range(nu):
                 K[i, a, b] = AB[a, b] if a < npos else 0.0
