@@ -496,32 +496,22 @@ def velocity_frame_jacobian_rows(
                 if m < N - 1:
                     dT[m, 1, k, c] += Da[m, k, c]
                     dT[m, 2, k, c] -= Da[m, k, c]
-    # the torque changes of segments m-1..m+1 are the 9 (6 at the tip)
-    # contiguous mobility columns 3N + 3(m-1) ...: coefficients by component
-    dTc = np.zeros((3, N, 9))
-    dFc = np.zeros((3, N, 3))
-    for m in range(1, N):
-        nt = 9 if m < N - 1 else 6
-        for c in range(3):
-            for p in range(nt):
-                dTc[c, m, p] = dT[m, p // 3, p % 3, c]
-            for k in range(3):
-                dFc[c, m, k] = dF[m, k, c]
     for ii in range(nr):
         i = rows[ii]
-        for c in range(3):
-            if not cmask[c]:
-                continue
-            for m in range(1, N):
-                o = 3 * (m - 1)
-                nt = 9 if m < N - 1 else 6
+        for m in range(1, N):
+            o = 3 * (m - 1)
+            nlo = m - 1
+            nhi = m + 1 if m < N - 1 else m
+            for c in range(3):
+                if not cmask[c]:
+                    continue
                 s = 0.0
                 if fol:
                     for k in range(3):
-                        s += M[i, 3 * m + k] * dFc[c, m, k]
-                c0 = 3 * N + 3 * (m - 1)
-                for p in range(nt):
-                    s += M[i, c0 + p] * dTc[c, m, p]
+                        s += M[i, 3 * m + k] * dF[m, k, c]
+                for n in range(nlo, nhi + 1):
+                    for k in range(3):
+                        s += M[i, 3 * N + 3 * n + k] * dT[m, n - m + 1, k, c]
                 W[ii, o + c] += s
                 if squirm and i < 3 * N:
                     W[ii, o + c] += (Kt[i, 3 * m] * Cs[m, 0, c] + Kt[i, 3 * m + 1] * Cs[m, 1, c]
