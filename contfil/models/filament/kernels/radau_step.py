@@ -210,17 +210,22 @@ def arm_matrix(t: np.ndarray, zmap: np.ndarray, rmap: np.ndarray, nu: int, npos:
     rotation components (segment 0 clamped; ``dX_n/dth_m = w_nm dL (dth_m x
     t_m)``, ``w = 1`` for ``m < n``, ``1/2`` for ``m = n``)."""
     P = np.zeros((npos, nu))
+    ms = np.empty(nu, dtype=np.int64)
+    cs = np.empty(nu, dtype=np.int64)
+    for j in range(nu):  # the segment and component of each increment, once
+        ms[j] = zmap[j] // 3 + 1
+        cs[j] = zmap[j] % 3
     for i in range(npos):
         r = rmap[i]
         n, k = r // 3, r % 3
         for j in range(nu):
-            m = zmap[j] // 3 + 1
-            c = zmap[j] % 3
+            m = ms[j]
+            c = cs[j]
             if m <= n and k != c:
                 w = 0.5 if n == m else 1.0
-                l_ = 3 - k - c
-                sg = 1.0 if (k - c) % 3 == 2 else -1.0
-                P[i, j] = w * sg * t[m, l_]
+                # (k - c) mod 3 == 2, i.e. c == k + 1 mod 3: the sign of (th_c e_c x t)_k
+                sg = 1.0 if c == k + 1 or c == k - 2 else -1.0
+                P[i, j] = w * sg * t[m, 3 - k - c]
     return P
 
 
