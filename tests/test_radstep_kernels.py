@@ -6,17 +6,20 @@ the block-diagonal ``dexp`` product) end where the Python-driven stepper on
 the tangent's stage blocks ends (many steps, planar and 3D, to 1e-13); the
 compact RPY rows are the full derivative's rows, with overlapping pairs and
 a pair at exactly ``2a``, for every component mask; the full derivative is
-the central difference of the mobility product.
+the central difference of the mobility product; the dense mobility (RPY and
+local) is exactly symmetric, which the frame derivative's row form uses.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_filament_radau import _bent, _model
+from test_filament_radau import N, _bent, _model
 
 from contfil.models.filament.integrators import radau
 from contfil.models.filament.kernels import rpy_derivative as kd
+from contfil.models.filament.kernels.bdf2_tangent import dense_mobility
+from contfil.models.filament.kernels.effects import F_HYDRO, HYD_LOCAL, HYD_RPY
 from contfil.models.filament.kernels.rpy import rpy_mobility
 
 
@@ -65,3 +68,17 @@ def test_compact_rpy_rows_with_overlapping_pairs() -> None:
         Xm.flat[col] -= h
         fd = (rpy_mobility(Xp, a, eta) @ FT - rpy_mobility(Xm, a, eta) @ FT) / (2 * h)
         assert np.abs(full[:, col] - fd).max() < 1e-6 * np.abs(fd).max()
+
+
+@pytest.mark.parametrize("hydro", ["rpy", "local"])
+def test_dense_mobility_is_exactly_symmetric(hydro: str) -> None:
+    """``velocity_frame_jacobian_rows`` applies the mobility by rows in place
+    of columns: exact only for an exactly symmetric matrix."""
+    m = _model("3d", "squirmer", 100.0)
+    rng = np.random.default_rng(11)
+    X = np.cumsum(rng.standard_normal((N, 3)), axis=0)
+    X[5] = X[4] + 0.2  # an overlapping pair
+    par, flags = m.physics.params(100.0), m.physics.flags.copy()
+    flags[F_HYDRO] = HYD_RPY if hydro == "rpy" else HYD_LOCAL
+    M = dense_mobility(X, par, flags)
+    assert np.array_equal(M, M.T)
