@@ -332,8 +332,9 @@ def _load_columns_rows(
 ) -> np.ndarray:
     """:func:`.bdf2_tangent._load_columns` (the exact load columns) with the
     mobility read by rows: each load column is at most six mobility columns
-    (two segments' forces and torques), gathered from the selected rows
-    (``rinv``: full row -> selected row, -1 elsewhere) only."""
+    (two segments' forces and torques), i.e. (``M`` the exactly symmetric
+    dense mobility) six rows, combined by vectorised axpys and read at the
+    selected rows (``rinv``: full row -> selected row, -1 elsewhere)."""
     N = t.shape[0]
     nz = zmap.shape[0]
     nl = nz - nu
@@ -362,14 +363,22 @@ def _load_columns_rows(
     # the mobility rows of the selected residual rows only: the orientation
     # rows mix the selected components of Omega_n by dexp_inv(u_n), which is
     # exact for an invariant block (as residual_frame_jacobian)
+    # by rows of the (exactly symmetric) mobility, M[r, idx] = M[idx, r]:
+    # each load column is a combination of <= 6 contiguous rows of M
     MG = np.empty((nz, nl))
-    for a in range(nz):
-        r = rmap[a]
-        for jj in range(nl):
-            acc = 0.0
-            for p in range(6):
-                acc += cf[jj, p] * M[r, idx[jj, p]]
-            MG[a, jj] = acc
+    L6 = 6 * N
+    col = np.empty(L6)
+    for jj in range(nl):
+        for c in range(L6):
+            col[c] = 0.0
+        for p in range(6):
+            f = cf[jj, p]
+            if f != 0.0:
+                rr = idx[jj, p]
+                for c in range(L6):
+                    col[c] += f * M[rr, c]
+        for a in range(nz):
+            MG[a, jj] = col[rmap[a]]
     out = np.empty((nz, nl))
     for a in range(nz):
         r = rmap[a]
