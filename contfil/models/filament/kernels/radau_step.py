@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numba.typed import List
 
 from .bdf2_residual import C_G, frames_at, full_unknowns, residual, unpack_loads, velocities
 from .bdf2_tangent import (
@@ -209,17 +210,22 @@ def arm_matrix(t: np.ndarray, zmap: np.ndarray, rmap: np.ndarray, nu: int, npos:
     rotation components (segment 0 clamped; ``dX_n/dth_m = w_nm dL (dth_m x
     t_m)``, ``w = 1`` for ``m < n``, ``1/2`` for ``m = n``)."""
     P = np.zeros((npos, nu))
+    ms = np.empty(nu, dtype=np.int64)
+    cs = np.empty(nu, dtype=np.int64)
+    for j in range(nu):  # the segment and component of each increment, once
+        ms[j] = zmap[j] // 3 + 1
+        cs[j] = zmap[j] % 3
     for i in range(npos):
         r = rmap[i]
         n, k = r // 3, r % 3
         for j in range(nu):
-            m = zmap[j] // 3 + 1
-            c = zmap[j] % 3
+            m = ms[j]
+            c = cs[j]
             if m <= n and k != c:
                 w = 0.5 if n == m else 1.0
-                l_ = 3 - k - c
-                sg = 1.0 if (k - c) % 3 == 2 else -1.0
-                P[i, j] = w * sg * t[m, l_]
+                # (k - c) mod 3 == 2, i.e. c == k + 1 mod 3: the sign of (th_c e_c x t)_k
+                sg = 1.0 if c == k + 1 or c == k - 2 else -1.0
+                P[i, j] = w * sg * t[m, 3 - k - c]
     return P
 
 
@@ -326,8 +332,9 @@ def _load_columns_rows(
 ) -> np.ndarray:
     """:func:`.bdf2_tangent._load_columns` (the exact load columns) with the
     mobility read by rows: each load column is at most six mobility columns
-    (two segments' forces and torques), gathered from the selected rows
-    (``rinv``: full row -> selected row, -1 elsewhere) only."""
+    (two segments' forces and torques), i.e. (``M`` the exactly symmetric
+    dense mobility) six rows, combined by vectorised axpys and read at the
+    selected rows (``rinv``: full row -> selected row, -1 elsewhere)."""
     N = t.shape[0]
     nz = zmap.shape[0]
     nl = nz - nu
@@ -356,14 +363,22 @@ def _load_columns_rows(
     # the mobility rows of the selected residual rows only: the orientation
     # rows mix the selected components of Omega_n by dexp_inv(u_n), which is
     # exact for an invariant block (as residual_frame_jacobian)
+    # by rows of the (exactly symmetric) mobility, M[r, idx] = M[idx, r]:
+    # each load column is a combination of <= 6 contiguous rows of M
     MG = np.empty((nz, nl))
-    for a in range(nz):
-        r = rmap[a]
-        for jj in range(nl):
-            acc = 0.0
-            for p in range(6):
-                acc += cf[jj, p] * M[r, idx[jj, p]]
-            MG[a, jj] = acc
+    L6 = 6 * N
+    col = np.empty(L6)
+    for jj in range(nl):
+        for c in range(L6):
+            col[c] = 0.0
+        for p in range(6):
+            f = cf[jj, p]
+            if f != 0.0:
+                rr = idx[jj, p]
+                for c in range(L6):
+                    col[c] += f * M[rr, c]
+        for a in range(nz):
+            MG[a, jj] = col[rmap[a]]
     out = np.empty((nz, nl))
     for a in range(nz):
         r = rmap[a]
@@ -376,26 +391,27 @@ def _load_columns_rows(
                 for j in range(nl):
                     out[a, j] = -gdt * MG[a, j]
             else:
-                An = A[n - 1]
                 for j in range(nl):
                     out[a, j] = 0.0
                 for kk in range(3):
                     b = rinv[3 * N + 3 * n + kk]
                     if b >= 0:
+                        ack = gdt * A[n - 1, c, kk]
                         for j in range(nl):
-                            out[a, j] -= gdt * An[c, kk] * MG[b, j]
+                            out[a, j] -= ack * MG[b, j]
     return out
 
 
 @njit(cache=True)
 def prepare_stages(Zf: np.ndarray, qk: np.ndarray, par: np.ndarray, flags: np.ndarray,
                    Qs: np.ndarray, Ts: np.ndarray, Xs: np.ndarray, Fs: np.ndarray,
-                   Tqs: np.ndarray, Mobs: np.ndarray, Vs: np.ndarray, Oms: np.ndarray) -> None:
+                   Tqs: np.ndarray, Mobs: List, Vs: np.ndarray, Oms: np.ndarray) -> None:
     """Per stage at physical unknowns ``Zf`` (s, 6N), in place: frames ``Qs``
     (s, N, 4), tangents ``Ts``, positions ``Xs``, segment forces ``Fs`` and
-    torques ``Tqs`` (s, N, 3), the dense mobility ``Mobs`` (s, 6N, 6N) and
-    the velocities ``Vs``, ``Oms`` (s, N, 3) as its product (plus the
-    squirmers' surface flow): what both the Newton matrix
+    torques ``Tqs`` (s, N, 3), the dense mobilities ``Mobs`` (a typed list of
+    ``s`` arrays (6N, 6N): each stage's assembled matrix itself, no copy) and
+    the velocities ``Vs``, ``Oms`` (s, N, 3) as its product (one BLAS
+    ``gemv``, plus the squirmers' surface flow): what both the Newton matrix
     (:func:`newton_blocks_prepared`) and the stage residual
     (:func:`stage_residual_prepared`) need at one point."""
     s = Zf.shape[0]
@@ -414,7 +430,7 @@ def prepare_stages(Zf: np.ndarray, qk: np.ndarray, par: np.ndarray, flags: np.nd
         Xs[i] = X
         Lam, Fc, Tc = unpack_loads(zf, N)
         Mob = dense_mobility(X, par, flags)
-        Mobs[i] = Mob
+        Mobs[i] = Mob  # the array itself (a list entry), not a copy
         TE = elastic_torques(q, dL, par[P_KB], par[P_KT])
         F, T = segment_loads(t, Lam, Fc, Tc, TE, active_force(par, flags, t), dL)
         Fs[i] = F
@@ -423,18 +439,12 @@ def prepare_stages(Zf: np.ndarray, qk: np.ndarray, par: np.ndarray, flags: np.nd
             for k in range(3):
                 FT[3 * n + k] = F[n, k]
                 FT[R + 3 * n + k] = T[n, k]
+        VO = np.dot(Mob, FT)
         V = np.empty((N, 3))
         for n in range(N):
             for k in range(3):
-                acc = 0.0
-                acc2 = 0.0
-                r1 = 3 * n + k
-                r2 = R + 3 * n + k
-                for c in range(6 * N):
-                    acc += Mob[r1, c] * FT[c]
-                    acc2 += Mob[r2, c] * FT[c]
-                V[n, k] = acc
-                Oms[i, n, k] = acc2
+                V[n, k] = VO[3 * n + k]
+                Oms[i, n, k] = VO[R + 3 * n + k]
         add_surface_flow(par, flags, X, t, V)
         Vs[i] = V
 
@@ -447,7 +457,7 @@ def newton_blocks_prepared(
     Xs: np.ndarray,
     Fs: np.ndarray,
     Tqs: np.ndarray,
-    Mobs: np.ndarray,
+    Mobs: List,
     Oms: np.ndarray,
     dt: float,
     W: np.ndarray,
@@ -473,6 +483,15 @@ def newton_blocks_prepared(
     for j in range(nu):
         cmask[zmap[j] % 3] = True
     G = np.empty((nz, nu))
+    # dexp(u) is block diagonal by segments: column b of G Br sums the (at
+    # most 3) columns j of the same segment, G[:, j] B[seg, c_j, c_b]
+    bn = np.zeros(nu, dtype=np.int64)
+    bj = np.empty((nu, 3), dtype=np.int64)
+    for b in range(nu):
+        for j in range(nu):
+            if zmap[j] // 3 == zmap[b] // 3:
+                bj[b, bn[b]] = j
+                bn[b] += 1
     for i in range(s):
         zf = Zf[i]
         gdt = dt / W[i, i]
@@ -497,21 +516,25 @@ def newton_blocks_prepared(
                     for j in range(nu):
                         G[a, j] = -gdt * Wc[a, zmap[j]]
                 else:
-                    An = A[n - 1]
                     for j in range(nu):
                         acc = 0.0
                         for kk in range(3):
                             b = rinv[R + 3 * n + kk]
                             if b >= 0:
-                                acc += An[k, kk] * Wc[b, zmap[j]]
+                                acc += A[n - 1, k, kk] * Wc[b, zmap[j]]
                         G[a, j] = -gdt * acc
-        Br = _reduced_block(B, zmap, nu)
-        Ju = G @ Br
-        for a in range(nz):
-            for b in range(nu):
-                Jd[i, a, b] = Ju[a, b]
+        for b in range(nu):
+            sb, cb = zmap[b] // 3, zmap[b] % 3
+            nb = bn[b]
+            for a in range(nz):
+                acc = 0.0
+                for p in range(nb):
+                    j = bj[b, p]
+                    acc += G[a, j] * B[sb, zmap[j] % 3, cb]
+                Jd[i, a, b] = acc
         add_orientation_u(Jd[i], zf, Oms[i], zmap, rinv, nu, gdt)
-        AB = Arm @ Br
+        # the kinematic columns as before (bit for bit the tangent's, tested)
+        AB = Arm @ _reduced_block(B, zmap, nu)
         for a in range(nz):
             for b in range(nu):
                 K[i, a, b] = AB[a, b] if a < npos else 0.0
@@ -523,11 +546,16 @@ def newton_blocks_prepared(
 
 @njit(cache=True)
 def stage_arrays(s: int, N: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                          np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Work arrays of :func:`prepare_stages` ``(Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms)``."""
+                                          np.ndarray, List, np.ndarray, np.ndarray]:
+    """Work arrays of :func:`prepare_stages` ``(Qs, Ts, Xs, Fs, Tqs, Mobs, Vs, Oms)``;
+    ``Mobs`` is a typed list of ``s`` placeholders that :func:`prepare_stages`
+    replaces by the stages' mobility matrices (copying 6N x 6N per stage
+    cost 4 us at N = 20)."""
+    Mobs = List()
+    for _ in range(s):
+        Mobs.append(np.empty((0, 0)))
     return (np.empty((s, N, 4)), np.empty((s, N, 3)), np.empty((s, N, 3)), np.empty((s, N, 3)),
-            np.empty((s, N, 3)), np.empty((s, 6 * N, 6 * N)), np.empty((s, N, 3)),
-            np.empty((s, N, 3)))
+            np.empty((s, N, 3)), Mobs, np.empty((s, N, 3)), np.empty((s, N, 3)))
 
 
 @njit(cache=True)
