@@ -24,14 +24,15 @@ inside the flow, where it is harmless.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
+from test_tangent_textbook import RadauTangentModel
 
 from contfil.engine.continuation.driver import Continuation, ContinuationSettings
-from contfil.engine.flows.radau import RadauFlow
 from contfil.engine.problems.shooting import PeriodicOrbitProblem
 from contfil.errors import StepFailure
-from contfil.protocol import FlowTangent, FunctionModel
 
 ALPHA = 2.0
 MU_CUT = (np.pi / ALPHA) ** 2
@@ -51,34 +52,29 @@ def _rhs(u, q):
     return np.array([dx, x + mu * y - y * r2, al * dx - np.sin(a - al * x)])
 
 
-class WrappedAngleModel(FunctionModel):
+class WrappedAngleModel(RadauTangentModel):
     """The model above with a fixed-step Radau flow that returns ``a`` in
     ``(-π, π]``, and that flow's exact tangents (the wrap is a translation
     by 2π: it leaves them unchanged)."""
 
     def __init__(self, steps: int = 100) -> None:
-        super().__init__(_rhs, 3, {"mu": MU0, "alpha": ALPHA}, name="wrapped_angle")
-        self._radau = RadauFlow(self.rhs, None, steps=steps)
+        super().__init__(_rhs, 3, {"mu": MU0, "alpha": ALPHA}, name="wrapped_angle",
+                         steps=steps)
 
     def flow(self, u, p, T):
-        phi = np.array(self._radau.flow(u, p, T), dtype=float)
+        phi = np.array(super().flow(u, p, T), dtype=float)
         phi[2] = _wrap(phi[2])
         return phi
 
     def flow_tangent(self, u, p, T, V=None, param_index=None, samples=0):
-        r = self._radau
-        r.param_index = param_index
-        M, dT = r.monodromy(u, p, T)
-        phi = np.array(r.flow_and_tangents(u, p, T), dtype=float)
+        ft = super().flow_tangent(u, p, T, V=V, param_index=param_index, samples=samples)
+        phi = np.array(ft.phi, dtype=float)
         phi[2] = _wrap(phi[2])
-        dp = r.dflow_dp(u, p, T) if param_index is not None else None
         smp = None
-        if samples:
-            rows = [np.array(u, dtype=float)]
-            for _ in range(samples - 1):
-                rows.append(self.flow(rows[-1], p, T / samples))
-            smp = np.array(rows)
-        return FlowTangent(phi=phi, jvp=M if V is None else M @ V, dT=dT, dp=dp, samples=smp)
+        if ft.samples is not None:
+            smp = np.array(ft.samples, dtype=float)
+            smp[:, 2] = _wrap(smp[:, 2])
+        return replace(ft, phi=phi, samples=smp)
 
 
 def _continuation() -> Continuation:

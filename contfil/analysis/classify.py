@@ -682,12 +682,12 @@ def classify_attractor(
             raise NonFiniteError(f"classify: state is not finite at transient step {k}")
     if m and carrier is None:
         carrier = TangentCarrier(step, u, tangent=tangent)
-    sums = GrowthSums(m, dt, n_blocks, 1000) if m else None
+    sums = GrowthSums(m, dt, n_blocks, 1000) if carrier is not None else None
 
     def gen() -> Iterable[Vec]:
         v = u
         for k in range(n_steps):
-            if carrier is not None and sums is not None and sums.k < m:
+            if carrier is not None and sums is not None:
                 v = carrier.advance(v, transient + k)
                 if k >= align_window:
                     sums.add(carrier.log_growth)
@@ -696,7 +696,7 @@ def classify_attractor(
             yield v
 
     res = classify_samples(gen(), dt, n_steps, **kwargs)
-    if sums is not None and carrier is not None:
+    if carrier is not None and sums is not None:
         lyap = sums.result(align_window + align_transient, carrier.method, carrier.d)
         lyap_kwargs = {k: v for k, v in kwargs.items() if k in (
             "fp_tol", "rw_tol", "section_tol", "max_period", "discrete_power", "lyap_tol")}

@@ -311,11 +311,13 @@ def _mode_starts(u_s: Array, v: NDArray, om: float, e: float, period: float, m: 
     return out
 
 
-def _multiple_shooting_start(pb: MultipleShootingProblem, starts: list[Array], u_ref: Array,
-                             d: Array, e: float, p_s: float,
-                             tail: list[float]) -> tuple[Array, float, Array, dict[str, Any]]:
-    """Solve the first orbit of an ``m``-segment problem from mode starts:
-    the amplitude ``<d̂, u_0 - u_ref> = e`` on the first segment's state."""
+def _shooting_start(pb: PeriodicOrbitProblem, starts: list[Array], u_ref: Array, d: Array,
+                    e: float, p_s: float,
+                    tail: list[float]) -> tuple[Array, float, Array, dict[str, Any]]:
+    """Solve the first orbit of a (single or ``m``-segment) shooting problem
+    from the mode starts (one per segment): the amplitude
+    ``<d̂, u_0 - u_ref> = e`` on the first segment's state. Returns ``(x1,
+    p1, x_star, info)``, ``x_star`` the unknowns of the Hopf point itself."""
     m = len(starts)
     pb.set_reference(starts[0], p_s)
     x_star = np.concatenate([np.tile(u_ref, m), tail])
@@ -379,18 +381,10 @@ def cycles_from_hopf(
             "residual_evals": info["residual_evals"]})
     m = _segments_of(hopf, T0, problem_kw)
     steps = 100 if steps is None else steps
-    u0 = u_s + e * d
-    if m > 1:
-        pb = MultipleShootingProblem(model, param, base, segments=m, steps=steps,
-                                     **problem_kw)
-        x1, p1, x_star, info = _multiple_shooting_start(
-            pb, _mode_starts(u_s, v, om, e, T0, m), u_s, d, e, p_s, [T0])
-    else:
-        pb = PeriodicOrbitProblem(model, param, base, steps=steps, **problem_kw)
-        pb.set_reference(u0, p_s)
-        x_star = np.concatenate([u_s, [T0]])
-        dx = np.concatenate([d, [0.0]])
-        x1, p1, info = solve_with_amplitude(pb, np.concatenate([u0, [T0]]), p_s, x_star, dx, e)
+    pb = (MultipleShootingProblem(model, param, base, segments=m, steps=steps, **problem_kw)
+          if m > 1 else PeriodicOrbitProblem(model, param, base, steps=steps, **problem_kw))
+    x1, p1, x_star, info = _shooting_start(pb, _mode_starts(u_s, v, om, e, T0, m), u_s, d, e,
+                                           p_s, [T0])
     return _start(pb, (x1, p1), np.concatenate([x_star, [p_s]]), {
         "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "method": "shooting",
         "segments": m, "side": float(np.sign(p1 - p_s)),
@@ -548,31 +542,17 @@ def standing_wave_from_double_hopf(
         ur0, ur_s = proj(u0), proj(u_s)
         dr = proj(u_s + d) - ur_s
         e_r = float(_unit_real(dr) @ (ur0 - ur_s))
-        if m > 1:
-            pb = MultipleShootingProblem(model, param, base, segments=m, steps=steps,
-                                         subspace=subspace, **problem_kw)
-            x1, p1, x_star, info = _multiple_shooting_start(
-                pb, _mode_starts(u_s, s, om, e, T0, m, proj), ur_s, dr, e_r, p_s, [T0])
-        else:
-            pb = PeriodicOrbitProblem(model, param, base, steps=steps, subspace=subspace,
-                                      **problem_kw)
-            pb.set_reference(ur0, p_s)
-            x_star = np.concatenate([ur_s, [T0]])
-            xg = np.concatenate([ur0, [T0]])
-            x1, p1, info = solve_with_amplitude(pb, xg, p_s, x_star,
-                                                np.concatenate([dr, [0.0]]), e_r)
-    elif m > 1:
-        pb = RelativeMultipleShootingProblem(model, param, base, segments=m, steps=steps,
-                                             symmetry_index=symmetry_index, **problem_kw)
-        x1, p1, x_star, info = _multiple_shooting_start(
-            pb, _mode_starts(u_s, s, om, e, T0, m), u_s, d, e, p_s, [T0, 0.0])
+        kw = dict(steps=steps, subspace=subspace, **problem_kw)
+        pb = (MultipleShootingProblem(model, param, base, segments=m, **kw) if m > 1
+              else PeriodicOrbitProblem(model, param, base, **kw))
+        x1, p1, x_star, info = _shooting_start(pb, _mode_starts(u_s, s, om, e, T0, m, proj),
+                                               ur_s, dr, e_r, p_s, [T0])
     else:
-        pb = RelativePeriodicOrbitProblem(model, param, base, steps=steps,
-                                          symmetry_index=symmetry_index, **problem_kw)
-        pb.set_reference(u0, p_s)
-        x_star = np.concatenate([u_s, [T0, 0.0]])
-        x1, p1, info = solve_with_amplitude(pb, np.concatenate([u0, [T0, 0.0]]), p_s, x_star,
-                                            np.concatenate([d, [0.0, 0.0]]), e)
+        kw = dict(steps=steps, symmetry_index=symmetry_index, **problem_kw)
+        pb = (RelativeMultipleShootingProblem(model, param, base, segments=m, **kw) if m > 1
+              else RelativePeriodicOrbitProblem(model, param, base, **kw))
+        x1, p1, x_star, info = _shooting_start(pb, _mode_starts(u_s, s, om, e, T0, m), u_s, d,
+                                               e, p_s, [T0, 0.0])
     return _start(pb, (x1, p1), np.concatenate([x_star, [p_s]]), {
         "from": hopf.kind, "p_star": p_s, "omega": om, "eps": e, "subspace": subspace,
         "segments": m, "side": float(np.sign(p1 - p_s)),
