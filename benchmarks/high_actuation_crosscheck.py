@@ -41,12 +41,25 @@ plane (least squares on ``Re v``, ``Im v``) grow by ``|μ|`` per period: the
 fitted factor must lie below 1 just below the crossing and above 1 just
 above it, and equal the computed ``|μ|``.
 
+A fold of cycles with the run's flow (``--fold LABEL``, any stored run,
+e.g. the Radau planar run of tip SF): the fold orbit, pushed by ``--eps``,
+is iterated period by period with the run's own shooting flow at
+``p* - dp`` and ``p* + dp``. On the side of the branch's stable neighbour
+the stable orbit is re-solved at that parameter and the iterates of the
+map over its period must relax onto it (their return residual
+``|phi_T(U) - U|`` falls to 1e-6 of the orbit's size: any point of the
+orbit is a fixed point, whatever its phase);
+on the other side there is no orbit nearby and the iterates must leave the
+fold orbit (distance of the order of its size).
+
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/high_actuation_crosscheck.py \\
         [--models dis_ff ...] [--periods 60]
     OPENBLAS_NUM_THREADS=1 python benchmarks/high_actuation_crosscheck.py \\
         --spec branches/dis_ff_high_b1radau.toml --pair NS1 [--dp 0.05] [--periods 40]
+    OPENBLAS_NUM_THREADS=1 python benchmarks/high_actuation_crosscheck.py \\
+        --spec branches/tip_sf_high_planar.toml --fold LPC1 [--dp 0.5] [--periods 100]
 
 Prints a markdown table and one JSON line.
 """
@@ -322,6 +335,98 @@ def pair_growth(spec_path: Path, run: Path | None, label: str, dp: float, period
     return rows
 
 
+def fold_relax(spec_path: Path, run: Path | None, label: str, dp: float, periods: int,
+               eps: float, chunks: int = 80) -> list[dict[str, Any]]:
+    """A fold of cycles ``label`` of any stored run, checked with the run's own
+    flow (see the module docstring, "A fold of cycles with the run's flow"):
+    the fold orbit, pushed by ``eps`` (relative), is iterated period by period
+    at ``p* -+ dp`` on the side where the branch's stable orbits lie (it must
+    relax onto the stable orbit there, re-solved at that parameter) and on the
+    other side (no orbit nearby: it must leave)."""
+    spec = load_spec(spec_path)
+    model = build_model(spec).model
+    run = run or Path(spec_path).parent / "data" / Path(spec_path).stem
+    g = load_run_graph(run)
+    sid = next(s for s in g.special_points if g.label(s) == label)
+    sp = g.special_points[sid]
+    if sp.kind != "cycle_fold":
+        raise SystemExit(f"--fold {label}: a {sp.kind}, not a fold of cycles")
+    bid = g.branches_at(sid)[0]
+    br = g.branch(bid)
+    i = int(sp.index)
+    pstar = float(sp.point.p)
+    # the stable neighbour of the fold (the fold lies between points i, i+1)
+    near = [j for j in (i, i + 1) if (br.points[j].n_unstable or 0) == 0]
+    if not near:
+        raise SystemExit(f"--fold {label}: neither neighbour on {bid} is stable")
+    stable = br.points[near[0]]
+    side = float(np.sign(float(stable.p) - pstar))
+    seed, _ = stored_start(run, model, branch=bid, point=float(stable.p), subspace="auto",
+                           p_range=None)
+    pb = seed.problem
+    ops = pb.full_ops if pb.subspace is not None else pb.ops
+
+    def unknowns(pt: Any) -> np.ndarray:
+        u = np.asarray(pt.u, dtype=float)
+        uu = u if pb.subspace is None else np.asarray(pb.subspace.project(u), dtype=float)
+        return np.concatenate([uu, [float(pt.extra["period"])]])
+
+    x_fold = unknowns(sp.point)
+    pb.set_reference(x_fold[:pb.dim], pstar)
+    rng = np.random.default_rng(12)
+    rows = []
+    for where, p in (("stable side", pstar + side * dp), ("other side", pstar - side * dp)):
+        t0 = time.perf_counter()
+        q = pb.params_at(p)
+        if where == "stable side":
+            # the stable orbit at p, from the stored stable neighbour
+            x_ref = _newton(pb, unknowns(stable), p)
+        else:
+            x_ref = x_fold
+        U_ref = np.asarray(pb.state(x_ref), dtype=float)
+        T_ref = float(x_ref[pb.dim])
+        orbit = [U_ref]
+        for _ in range(chunks - 1):
+            orbit.append(np.asarray(ops.flow(orbit[-1], q, T_ref / chunks), dtype=float))
+        orbit_a = np.array(orbit)
+        size = float(np.max(np.linalg.norm(orbit_a - orbit_a.mean(axis=0), axis=1)))
+        spacing = float(np.max(np.linalg.norm(np.diff(np.vstack([orbit_a, orbit_a[:1]]),
+                                                      axis=0), axis=1)))
+        U0 = np.asarray(pb.state(x_fold), dtype=float)
+        v = rng.standard_normal(U0.size)
+        U = U0 + eps * np.linalg.norm(U0) * v / np.linalg.norm(v)
+        # stable side: iterate the map over the stable orbit's period; a state on
+        # that orbit is its fixed point at any phase, so the return residual
+        # |phi_T(U) - U| measures the approach without a phase; other side: the
+        # fold orbit's period, distance to its samples
+        T = T_ref if where == "stable side" else float(x_fold[pb.dim])
+        d = [orbit_distance(orbit_a, U)]
+        ret = []
+        for _ in range(periods):
+            Un = np.asarray(ops.flow(U, q, T), dtype=float)
+            if not np.all(np.isfinite(Un)):
+                break
+            ret.append(float(np.linalg.norm(Un - U)))
+            U = Un
+            d.append(orbit_distance(orbit_a, U))
+        row = {"special": label, "p_special": pstar, "p_error": sp.data.get("p_error"),
+               "side": where, "p": p, "d_first": d[0], "d_max": float(max(d)),
+               "d_last": d[-1], "periods": len(d) - 1, "orbit_size": size,
+               "return_first": ret[0] if ret else None, "return_last": ret[-1] if ret else None,
+               "sample_spacing": spacing, "reference": "stable orbit at p" if
+               where == "stable side" else "fold orbit", "wall_s": time.perf_counter() - t0}
+        rows.append(row)
+        if where == "stable side":
+            verdict = "relaxes onto it" if ret and ret[-1] < 1e-6 * size else "does not relax"
+        else:
+            verdict = "leaves it" if max(d) > 0.1 * size else "stays near it"
+        rf = f"{ret[0]:.1e} -> {ret[-1]:.1e}" if ret else "-"
+        print(f"| {label} (fold, {pstar:.5f}) | {where} | {p:.5f} | {row['reference']} | "
+              f"{d[0]:.2e} | {row['d_max']:.2e} | {d[-1]:.2e} | {rf} | {size:.3g} | "
+              f"{row['periods']} | {verdict} |", flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--models", nargs="*", default=list(MODELS), choices=MODELS)
@@ -331,9 +436,20 @@ def main() -> None:
                     help="run directory (default: branches/data/<spec name>)")
     ap.add_argument("--pair", default=None,
                     help="special-point label: pair-growth check across that crossing")
+    ap.add_argument("--fold", default=None,
+                    help="special-point label: a fold of cycles checked with the run's flow")
     ap.add_argument("--dp", type=float, default=0.05, help="distance from the crossing")
     ap.add_argument("--eps", type=float, default=1e-6, help="relative push")
     args = ap.parse_args()
+    if args.fold is not None:
+        if args.spec is None:
+            ap.error("--fold needs --spec")
+        print("| fold | side | parameter | distance to | first | max | last | "
+              "return residual (first -> last period) | orbit size | periods | |\n"
+              "|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
+        rows = fold_relax(args.spec, args.run, args.fold, args.dp, args.periods, args.eps)
+        print(json.dumps({"fold_relax": rows}))
+        return
     if args.pair is not None:
         if args.spec is None:
             ap.error("--pair needs --spec")
