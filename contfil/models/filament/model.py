@@ -54,7 +54,8 @@ class FilamentModel:
     Notes
     -----
     ``p = [s]`` holds the actuation strength (``f`` or ``b1``); a passive
-    scene has no parameters. Units: L = 1, K_B and eta as in the scene.
+    scene has no parameters; a two-actuation scene (``"follower_force+squirmer"``)
+    has two, ``p = [f, b1]``. Units: L = 1, K_B and eta as in the scene.
     """
 
     #: Exact tangents of the flow (``flow_tangent``) for the engine's shooting
@@ -93,9 +94,8 @@ class FilamentModel:
         self.planar = scene.planar
         self.name = scene.name + ("_planar" if self.planar and "planar" not in scene.name else "")
         self.dim = (scene.N - 1) if self.planar else 3 * (scene.N - 1)
-        pn = scene.param_name
-        self.param_names: tuple[str, ...] = () if pn is None else (pn,)
-        self._defaults = np.array([scene.strength]) if pn is not None else np.zeros(0)
+        self.param_names: tuple[str, ...] = scene.param_names
+        self._defaults = np.array(scene.strengths, dtype=float)
         #: the one physics object: rhs, the integrators and the observables use it
         self.physics = FilamentPhysics(scene)
         self.symmetries = self._build_symmetries()
@@ -125,13 +125,26 @@ class FilamentModel:
             raise ValueError(f"{self.name}: state has shape {u.shape}, expected ({self.dim},)")
         if not np.isfinite(u).all():
             raise NonFiniteError(f"{self.name}.rhs: non-finite state (NaN/inf in u)")
-        par = self.physics.params_cached(float(p[0]) if self.param_names else 0.0)
+        par = self.physics.params_cached(self._strength(p))
         out = self.physics.evaluate(u, par)
         if not np.isfinite(out[0]).all():
             raise NonFiniteError(
                 f"{self.name}.rhs: non-finite vector field at |u|={np.linalg.norm(u):.3g}"
             )
         return out
+
+    def _strength(self, p: Array) -> Any:
+        """The physics' strength of the parameter vector ``p``: a number (one
+        actuation; 0 for a passive scene) or the pair ``(f, b1)``."""
+        n = len(self.param_names)
+        if n == 0:
+            return 0.0
+        if n == 1:
+            return float(p[0])
+        if len(p) != n:
+            raise ValueError(f"{self.name}: parameter vector has {len(p)} entries, expected "
+                             f"{n} {list(self.param_names)}")
+        return tuple(float(v) for v in p)
 
     def jacobian(self, u: Array, p: Array) -> Array:
         """Dense Jacobian of :meth:`rhs` by central differences (O(h^2))."""
@@ -193,20 +206,22 @@ class FilamentModel:
     ) -> Any:
         """Exact tangent of :meth:`flow` (the protocol's optional hook):
         :func:`contfil.models.filament.integrators.bdf2_tangent.flow_tangent`
-        with ``dphi/dp`` when ``param_index`` is given."""
+        (or the Radau one) with ``dphi/dp_i`` when ``param_index = i`` is given
+        (the derivative in the model's parameter ``param_names[i]``)."""
         if self.integrator == "radau":
             from .integrators import radau
 
             n = self.flow_steps(T) if steps is None else int(steps)
             k = samples if samples and n % samples == 0 else 0
             return radau.flow_tangent(self, u, p, T, V, steps=n,
-                                      want_p=param_index is not None, samples=k, **stepper_kw)
+                                      want_p=param_index is not None, samples=k,
+                                      param_index=param_index, **stepper_kw)
         from .integrators.bdf2_tangent import flow_tangent
 
         n = self.flow_steps(T) if steps is None else int(steps)
         k = samples if samples and n % samples == 0 else 0
         return flow_tangent(self, u, p, T, V, steps=n, want_p=param_index is not None,
-                            samples=k, **stepper_kw)
+                            samples=k, param_index=param_index, **stepper_kw)
 
     # -- geometry helpers -------------------------------------------------
     def full_state(self, u: Array) -> Array:
