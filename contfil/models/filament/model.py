@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from contfil.errors import NonFiniteError
+from contfil.errors import NonFiniteError, SpecError
 from contfil.protocol import (
     ContinuousSymmetry,
     InvariantSubspace,
@@ -222,6 +222,55 @@ class FilamentModel:
         k = samples if samples and n % samples == 0 else 0
         return flow_tangent(self, u, p, T, V, steps=n, want_p=param_index is not None,
                             samples=k, param_index=param_index, **stepper_kw)
+
+    #: Scene fields a stored run's filament must share with this model's for
+    #: its states to be this model's (everything but the actuation strengths
+    #: and types, and the name).
+    STORED_SCENE_FIELDS = ("N", "dL_over_a", "dimension", "KB", "KT", "hydrodynamics",
+                           "eta", "profile", "base")
+
+    def stored_params(self, spec: Mapping[str, Any], param: str, values: Array) -> Array:
+        """This model's parameter vector for a point stored by a run of spec
+        ``spec`` (its manifest's), continued in ``param`` with parameters
+        ``values`` (:func:`contfil.explore.start.stored_start`, when a study
+        continues a stored point in another parameter or with another number
+        of parameters).
+
+        The stored scene must be this filament (:data:`STORED_SCENE_FIELDS`
+        equal); each stored parameter value goes to this model's parameter
+        of the same name, the others keep this model's (spec's) values. So a
+        tip SF point at ``b1`` started in a ``"follower_force+squirmer"``
+        scene with ``f = 0`` is the same orbit. A mismatch raises a one-line
+        :class:`SpecError` naming it.
+        """
+        table = spec.get("scene") if isinstance(spec, Mapping) else None
+        if not isinstance(table, Mapping):
+            raise SpecError("start.run: the stored run has no [scene] table; its parameters "
+                            f"cannot be mapped onto scene {self.scene.name!r}")
+        try:
+            stored = Scene.from_dict(table)
+        except SpecError as exc:
+            raise SpecError(f"start.run: the stored run's scene: {exc}") from None
+        for key in self.STORED_SCENE_FIELDS:
+            a, b = getattr(stored, key), getattr(self.scene, key)
+            if a != b:
+                raise SpecError(f"start.run: the stored run's scene has {key} = {a!r}, this "
+                                f"spec's {b!r}: not the same filament")
+        names = stored.param_names
+        values = np.atleast_1d(np.asarray(values, dtype=float))
+        if values.size != len(names):
+            raise SpecError(f"start.branch: the stored points have {values.size} parameter(s), "
+                            f"the stored scene {list(names)}")
+        if param not in names:
+            raise SpecError(f"start.branch: the stored branch is continued in {param!r}, not a "
+                            f"parameter of the stored scene {list(names)}")
+        p = self.default_params()
+        for name, v in zip(names, values, strict=True):
+            if name not in self.param_names:
+                raise SpecError(f"start.branch: the stored parameter {name!r} is not one of "
+                                f"model {self.name!r}'s {list(self.param_names)}")
+            p[self.param_names.index(name)] = float(v)
+        return p
 
     # -- geometry helpers -------------------------------------------------
     def full_state(self, u: Array) -> Array:
