@@ -226,7 +226,11 @@ class FilamentPhysics:
             return self.params(vals[0] + 1.0) - self.params(vals[0])
         up = list(vals)
         up[i] += 1.0
-        return self.params(up) - self.params(vals)
+        # only slot i moves (the NaN P_SCALE of a mixed par is no derivative)
+        slot = self.slots[i]
+        d = np.zeros_like(self._base)
+        d[slot] = self.params(up)[slot] - self.params(vals)[slot]
+        return d
 
     def strengths_of(self, par: Array) -> Any:
         """The strength(s) ``par`` was built with (inverse of :meth:`params`):
