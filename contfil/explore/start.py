@@ -224,7 +224,8 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
         is another one, or the model has another number of parameters than
         the stored run's, the model's ``stored_params(spec, param, values)``
         maps the stored point's parameters onto the model's (module
-        docstring); a model without it refuses.
+        docstring); a model without it is started as before (and a study
+        in another parameter is refused by its caller).
 
     Returns
     -------
@@ -243,7 +244,10 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
     names = list(model.param_names)
     study = br.param if param is None else str(param)
     n_stored = int(np.size(br.points[0].params)) if br.points else len(names)
-    remap = study != br.param or n_stored != len(names)
+    # only a model that maps stored parameters (``stored_params``) remaps; any
+    # other keeps the checks below (state size, the study's parameter)
+    remap = ((study != br.param or n_stored != len(names))
+             and callable(getattr(model, "stored_params", None)))
     # a remapped start is chosen on the stored parameter, the study's window
     # applies to the study's parameter (checked below)
     k = select_point(br, point, None if remap else p_range)
@@ -261,6 +265,8 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
         if br.param not in names:
             raise SpecError(f"start.branch: the stored branch is continued in {br.param!r}, a "
                             f"parameter model {model.name!r} does not have")
+        # the stored branch's own parameter (a caller checks it is the study's)
+        study = br.param
         params, p0 = np.asarray(pt.params, dtype=float), float(pt.p)
     u = np.asarray(pt.u, dtype=float)
     if u.size != int(model.dim):
@@ -298,11 +304,7 @@ def _mapped_params(run: Path, model: Any, stored_param: str, values: np.ndarray)
     """The model's parameter vector of a stored point continued in
     ``stored_param`` with parameters ``values``: the model's
     ``stored_params`` hook, given the stored run's spec (its manifest)."""
-    hook = getattr(model, "stored_params", None)
-    if not callable(hook):
-        raise SpecError(f"start.branch: the stored branch is continued in {stored_param!r} "
-                        f"with {values.size} parameter(s); model {model.name!r} has "
-                        f"{list(model.param_names)} and cannot map them")
+    hook = model.stored_params
     try:
         spec = RunStore.read_manifest(run).get("spec") or {}
     except (ContfilError, OSError, ValueError) as exc:
