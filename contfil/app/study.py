@@ -143,7 +143,7 @@ def root_seed(spec: Spec, info: ModelInfo) -> Seed:
             subspace=st["subspace"], steps=st["steps"], direction=int(c["direction"]),
             segments=int(st.get("segments") or 1),
             both_directions=bool(c["both_directions"]),
-            p_range=None if c["range"] is None else tuple(c["range"]))
+            p_range=None if c["range"] is None else tuple(c["range"]), param=param)
         if seed.problem.param != param:
             raise SpecError(f"start.branch: the stored branch is continued in "
                             f"{seed.problem.param!r}, this study in {param!r}")

@@ -25,6 +25,14 @@ With ``segments > 1`` (``[start] segments``) a cycle is shot by
 (or its relative variant) instead; the other segment starts are flowed from
 the stored phase origin, and branches switched from it inherit the segments.
 
+A study may continue the stored solution in another parameter than the one
+its branch was continued in, or with a model of more parameters (a
+two-actuation filament started from a single-actuation run): then the model
+maps the stored point's parameters onto its own (``stored_params``, e.g.
+:meth:`contfil.models.filament.model.FilamentModel.stored_params`, which
+checks the stored run's scene), and the point is chosen on the stored
+branch's parameter while the study's window applies to the study's one.
+
 A stored cycle is restarted by shooting even if it was computed by
 collocation: a stored point holds the state at the phase origin and the
 period, which is a shooting orbit's unknowns (the first corrector step
@@ -51,7 +59,7 @@ from contfil.errors import ContfilError, SpecError
 from contfil.explore.seeds import Seed
 from contfil.explore.switchers import PERIOD_MEANS
 from contfil.graph.branch_graph import BranchGraph
-from contfil.store.run_store import load_run_graph
+from contfil.store.run_store import RunStore, load_run_graph
 
 #: Words ``point`` accepts besides a parameter value.
 POINT_WORDS = ("first", "last", "last_stable", "first_stable")
@@ -187,7 +195,8 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
                  subspace: str = "auto", steps: int | None = None, segments: int = 1,
                  direction: int = 1,
                  both_directions: bool = False,
-                 p_range: tuple[float, float] | None = None) -> tuple[Seed, StartChoice]:
+                 p_range: tuple[float, float] | None = None,
+                 param: str | None = None) -> tuple[Seed, StartChoice]:
     """The root seed of a study that starts from a stored state.
 
     Parameters
@@ -210,6 +219,13 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
         Also continue the other way from the stored point.
     p_range:
         The study's parameter window; the stored point must lie in it.
+    param:
+        The study's continued parameter (None: the stored branch's). When it
+        is another one, or the model has another number of parameters than
+        the stored run's, the model's ``stored_params(spec, param, values)``
+        maps the stored point's parameters onto the model's (module
+        docstring); a model without it is started as before (and a study
+        in another parameter is refused by its caller).
 
     Returns
     -------
@@ -225,11 +241,33 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
         raise SpecError(f"start.run: {exc}") from None
     bid = select_branch(graph, branch)
     br = graph.branch(bid)
-    k = select_point(br, point, p_range)
+    names = list(model.param_names)
+    study = br.param if param is None else str(param)
+    n_stored = int(np.size(br.points[0].params)) if br.points else len(names)
+    # only a model that maps stored parameters (``stored_params``) remaps; any
+    # other keeps the checks below (state size, the study's parameter)
+    remap = ((study != br.param or n_stored != len(names))
+             and callable(getattr(model, "stored_params", None)))
+    # a remapped start is chosen on the stored parameter, the study's window
+    # applies to the study's parameter (checked below)
+    k = select_point(br, point, None if remap else p_range)
     pt = br.points[k]
-    if br.param not in model.param_names:
-        raise SpecError(f"start.branch: the stored branch is continued in {br.param!r}, a "
-                        f"parameter model {model.name!r} does not have")
+    if remap:
+        params = _mapped_params(run, model, br.param, np.asarray(pt.params, dtype=float))
+        if study not in names:
+            raise SpecError(f"start.branch: model {model.name!r} has no parameter {study!r}; "
+                            f"known: {names}")
+        p0 = float(params[names.index(study)])
+        if p_range is not None and not p_range[0] <= p0 <= p_range[1]:
+            raise SpecError(f"start.point: the start has {study} = {p0:.6g} (from the spec), "
+                            f"outside continuation.range {list(p_range)}")
+    else:
+        if br.param not in names:
+            raise SpecError(f"start.branch: the stored branch is continued in {br.param!r}, a "
+                            f"parameter model {model.name!r} does not have")
+        # the stored branch's own parameter (a caller checks it is the study's)
+        study = br.param
+        params, p0 = np.asarray(pt.params, dtype=float), float(pt.p)
     u = np.asarray(pt.u, dtype=float)
     if u.size != int(model.dim):
         raise SpecError(f"start.run: stored states have {u.size} entries, model "
@@ -243,8 +281,7 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
     if int(segments) > 1 and br.kind not in ("periodic_orbit", "relative_periodic_orbit"):
         raise SpecError(f"start.segments: only a cycle is shot by multiple shooting; the "
                         f"stored branch {bid} is a {br.kind}")
-    problem = start_problem(model, br.kind, br.param, np.asarray(pt.params, dtype=float),
-                            sub, steps, segments)
+    problem = start_problem(model, br.kind, study, params, sub, steps, segments)
     tail = [float(pt.extra[key]) for key in ("omega", "period", "drift") if key in pt.extra]
     x0 = np.concatenate([u if sub is None else np.asarray(problem.subspace.project(u)), tail])
     multi = isinstance(problem, MultipleShootingProblem)
@@ -255,9 +292,25 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
                         f"{['omega', 'period', 'drift']} data)")
     if multi:
         # the other segment starts flowed from the stored phase origin
-        x0 = problem.from_single(x0, float(pt.p))
+        x0 = problem.from_single(x0, p0)
     choice = StartChoice(run=run, branch_id=bid, index=k, p=float(pt.p), subspace=sub)
-    seed = Seed(problem=problem, x0=x0, p0=float(pt.p), direction=int(direction),
+    seed = Seed(problem=problem, x0=x0, p0=p0, direction=int(direction),
                 both_directions=both_directions, label=f"{bid}[{k}] of {run.name}",
                 info={"start": choice.describe()})
     return seed, choice
+
+
+def _mapped_params(run: Path, model: Any, stored_param: str, values: np.ndarray) -> np.ndarray:
+    """The model's parameter vector of a stored point continued in
+    ``stored_param`` with parameters ``values``: the model's
+    ``stored_params`` hook, given the stored run's spec (its manifest)."""
+    hook = model.stored_params
+    try:
+        spec = RunStore.read_manifest(run).get("spec") or {}
+    except (ContfilError, OSError, ValueError) as exc:
+        raise SpecError(f"start.run: cannot read the stored run's spec: {exc}") from None
+    params = np.asarray(hook(spec, stored_param, values), dtype=float)
+    if params.shape != (len(model.param_names),):
+        raise SpecError(f"start.branch: model {model.name!r} mapped the stored parameters to "
+                        f"{params.size} values, expected {len(model.param_names)}")
+    return params

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from contfil.errors import NonFiniteError
+from contfil.errors import NonFiniteError, SpecError
 from contfil.protocol import (
     ContinuousSymmetry,
     InvariantSubspace,
@@ -54,7 +54,8 @@ class FilamentModel:
     Notes
     -----
     ``p = [s]`` holds the actuation strength (``f`` or ``b1``); a passive
-    scene has no parameters. Units: L = 1, K_B and eta as in the scene.
+    scene has no parameters; a two-actuation scene (``"follower_force+squirmer"``)
+    has two, ``p = [f, b1]``. Units: L = 1, K_B and eta as in the scene.
     """
 
     #: Exact tangents of the flow (``flow_tangent``) for the engine's shooting
@@ -93,9 +94,8 @@ class FilamentModel:
         self.planar = scene.planar
         self.name = scene.name + ("_planar" if self.planar and "planar" not in scene.name else "")
         self.dim = (scene.N - 1) if self.planar else 3 * (scene.N - 1)
-        pn = scene.param_name
-        self.param_names: tuple[str, ...] = () if pn is None else (pn,)
-        self._defaults = np.array([scene.strength]) if pn is not None else np.zeros(0)
+        self.param_names: tuple[str, ...] = scene.param_names
+        self._defaults = np.array(scene.strengths, dtype=float)
         #: the one physics object: rhs, the integrators and the observables use it
         self.physics = FilamentPhysics(scene)
         self.symmetries = self._build_symmetries()
@@ -125,13 +125,26 @@ class FilamentModel:
             raise ValueError(f"{self.name}: state has shape {u.shape}, expected ({self.dim},)")
         if not np.isfinite(u).all():
             raise NonFiniteError(f"{self.name}.rhs: non-finite state (NaN/inf in u)")
-        par = self.physics.params_cached(float(p[0]) if self.param_names else 0.0)
+        par = self.physics.params_cached(self._strength(p))
         out = self.physics.evaluate(u, par)
         if not np.isfinite(out[0]).all():
             raise NonFiniteError(
                 f"{self.name}.rhs: non-finite vector field at |u|={np.linalg.norm(u):.3g}"
             )
         return out
+
+    def _strength(self, p: Array) -> Any:
+        """The physics' strength of the parameter vector ``p``: a number (one
+        actuation; 0 for a passive scene) or the pair ``(f, b1)``."""
+        n = len(self.param_names)
+        if n == 0:
+            return 0.0
+        if n == 1:
+            return float(p[0])
+        if len(p) != n:
+            raise ValueError(f"{self.name}: parameter vector has {len(p)} entries, expected "
+                             f"{n} {list(self.param_names)}")
+        return tuple(float(v) for v in p)
 
     def jacobian(self, u: Array, p: Array) -> Array:
         """Dense Jacobian of :meth:`rhs` by central differences (O(h^2))."""
@@ -193,20 +206,71 @@ class FilamentModel:
     ) -> Any:
         """Exact tangent of :meth:`flow` (the protocol's optional hook):
         :func:`contfil.models.filament.integrators.bdf2_tangent.flow_tangent`
-        with ``dphi/dp`` when ``param_index`` is given."""
+        (or the Radau one) with ``dphi/dp_i`` when ``param_index = i`` is given
+        (the derivative in the model's parameter ``param_names[i]``)."""
         if self.integrator == "radau":
             from .integrators import radau
 
             n = self.flow_steps(T) if steps is None else int(steps)
             k = samples if samples and n % samples == 0 else 0
             return radau.flow_tangent(self, u, p, T, V, steps=n,
-                                      want_p=param_index is not None, samples=k, **stepper_kw)
+                                      want_p=param_index is not None, samples=k,
+                                      param_index=param_index, **stepper_kw)
         from .integrators.bdf2_tangent import flow_tangent
 
         n = self.flow_steps(T) if steps is None else int(steps)
         k = samples if samples and n % samples == 0 else 0
         return flow_tangent(self, u, p, T, V, steps=n, want_p=param_index is not None,
-                            samples=k, **stepper_kw)
+                            samples=k, param_index=param_index, **stepper_kw)
+
+    #: Scene fields a stored run's filament must share with this model's for
+    #: its states to be this model's (everything but the actuation strengths
+    #: and types, and the name).
+    STORED_SCENE_FIELDS = ("N", "dL_over_a", "dimension", "KB", "KT", "hydrodynamics",
+                           "eta", "profile", "base")
+
+    def stored_params(self, spec: Mapping[str, Any], param: str, values: Array) -> Array:
+        """This model's parameter vector for a point stored by a run of spec
+        ``spec`` (its manifest's), continued in ``param`` with parameters
+        ``values`` (:func:`contfil.explore.start.stored_start`, when a study
+        continues a stored point in another parameter or with another number
+        of parameters).
+
+        The stored scene must be this filament (:data:`STORED_SCENE_FIELDS`
+        equal); each stored parameter value goes to this model's parameter
+        of the same name, the others keep this model's (spec's) values. So a
+        tip SF point at ``b1`` started in a ``"follower_force+squirmer"``
+        scene with ``f = 0`` is the same orbit. A mismatch raises a one-line
+        :class:`SpecError` naming it.
+        """
+        table = spec.get("scene") if isinstance(spec, Mapping) else None
+        if not isinstance(table, Mapping):
+            raise SpecError("start.run: the stored run has no [scene] table; its parameters "
+                            f"cannot be mapped onto scene {self.scene.name!r}")
+        try:
+            stored = Scene.from_dict(table)
+        except SpecError as exc:
+            raise SpecError(f"start.run: the stored run's scene: {exc}") from None
+        for key in self.STORED_SCENE_FIELDS:
+            a, b = getattr(stored, key), getattr(self.scene, key)
+            if a != b:
+                raise SpecError(f"start.run: the stored run's scene has {key} = {a!r}, this "
+                                f"spec's {b!r}: not the same filament")
+        names = stored.param_names
+        values = np.atleast_1d(np.asarray(values, dtype=float))
+        if values.size != len(names):
+            raise SpecError(f"start.branch: the stored points have {values.size} parameter(s), "
+                            f"the stored scene {list(names)}")
+        if param not in names:
+            raise SpecError(f"start.branch: the stored branch is continued in {param!r}, not a "
+                            f"parameter of the stored scene {list(names)}")
+        p = self.default_params()
+        for name, v in zip(names, values, strict=True):
+            if name not in self.param_names:
+                raise SpecError(f"start.branch: the stored parameter {name!r} is not one of "
+                                f"model {self.name!r}'s {list(self.param_names)}")
+            p[self.param_names.index(name)] = float(v)
+        return p
 
     # -- geometry helpers -------------------------------------------------
     def full_state(self, u: Array) -> Array:

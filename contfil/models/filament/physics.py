@@ -17,7 +17,11 @@ the scene names. Every consumer reads the same two arrays:
 
 The actuation strength (``f`` or ``b1``, the continuation parameter) is the
 only number that changes between calls: :meth:`FilamentPhysics.params`
-returns ``par`` with it set.
+returns ``par`` with it set. The two-actuation scene
+(``"follower_force+squirmer"``) has two strengths, ``(f, b1)``, each with its
+own dimensional factor (:attr:`FilamentPhysics.scales`): ``params`` then
+takes the pair, and :meth:`FilamentPhysics.dparams` is the derivative of
+``par`` in one of them (the tangents' parameter column).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ from .kernels import geometry as _geo
 from .kernels import rpy as _rpy
 from .kernels import squirmer as _sq
 from .kernels.effects import (
+    ACT_BOTH,
     ACT_FOLLOWER,
     ACT_NONE,
     ACT_SQUIRMER,
@@ -53,9 +58,12 @@ from .kernels.effects import (
     P_SCALE,
     P_W,
 )
-from .scene import Scene
+from .scene import MIXED, Scene
 
 Array = NDArray[np.float64]
+
+#: ``flags[F_ACT]`` of each actuation type (a bit mask, kernels/effects.py).
+_ACT_BITS = {"follower_force": ACT_FOLLOWER, "squirmer": ACT_SQUIRMER, MIXED: ACT_BOTH}
 
 
 def embed_planar(phi: Array) -> Array:
@@ -109,11 +117,15 @@ class FilamentPhysics:
     par:
         ``par`` at the scene's own strength, or at ``strength`` when given
         (layout in :mod:`.kernels.effects`); :meth:`params` sets another.
+    param_names, slots, scales:
+        The actuation parameters (the scene's ``param_names``), the ``par``
+        slot (``P_F``, ``P_B1``) each sets and its strength -> dimensional
+        factor (``K_B/L^2`` for f, ``K_B/(eta L^3)`` for b1).
     flags:
         ``[hydrodynamics, actuation, planar]`` (int64).
     """
 
-    def __init__(self, scene: Scene, strength: float | None = None) -> None:
+    def __init__(self, scene: Scene, strength: Any = None) -> None:
         self.scene = scene
         self.N = scene.N
         self.dL = scene.dL
@@ -125,24 +137,33 @@ class FilamentPhysics:
         self.hydro = scene.hydrodynamics
         flags = np.zeros(N_FLAGS, dtype=np.int64)
         flags[F_HYDRO] = HYD_RPY if scene.hydrodynamics == "rpy" else HYD_LOCAL
-        flags[F_ACT] = {"follower_force": ACT_FOLLOWER, "squirmer": ACT_SQUIRMER}.get(
-            scene.actuation or "", ACT_NONE
-        )
+        flags[F_ACT] = _ACT_BITS.get(scene.actuation or "", ACT_NONE)
         flags[F_PLANAR] = int(scene.planar)
         self.flags = flags
         par = np.zeros(P_W + scene.N)
         par[P_DL], par[P_A], par[P_ETA] = scene.dL, scene.a, scene.eta
         par[P_KB], par[P_KT] = scene.KB, scene.KT
-        if flags[F_ACT] == ACT_FOLLOWER:
-            par[P_SCALE] = scene.KB / scene.L**2
-        elif flags[F_ACT] == ACT_SQUIRMER:
-            par[P_SCALE] = scene.KB / (scene.eta * scene.L**3)
+        #: the actuation parameters (the scene's), the ``par`` slot each sets
+        #: and its strength -> dimensional factor
+        self.param_names: tuple[str, ...] = scene.param_names
+        slot = {"f": P_F, "b1": P_B1}
+        scale = {"f": scene.KB / scene.L**2, "b1": scene.KB / (scene.eta * scene.L**3)}
+        self.slots: tuple[int, ...] = tuple(slot[n] for n in self.param_names)
+        self.scales: tuple[float, ...] = tuple(scale[n] for n in self.param_names)
+        if len(self.param_names) == 1:
+            par[P_SCALE] = self.scales[0]
+        elif len(self.param_names) > 1:
+            # no one factor: FilamentPhysics.scales holds one per parameter
+            par[P_SCALE] = np.nan
         if flags[F_ACT] != ACT_NONE:
-            # every segment, the clamped one included (numerics-notes, "Readings")
+            # every segment, the clamped one included (numerics-notes, "Readings");
+            # one profile: the same weights for both effects of a mixed scene
             par[P_W:] = 0.0 if scene.profile == "tip" else 1.0
             par[P_W + scene.N - 1] = 1.0
         self._base = par
-        self.par = self.params(scene.strength if strength is None else strength)
+        if strength is None:
+            strength = scene.strengths if len(self.param_names) > 1 else scene.strength
+        self.par = self.params(strength)
         # configuration-independent mobilities and zero loads, built once per
         # dimension (read-only: the kernels never write to their inputs)
         self._local: dict[int, Array] = {}
@@ -150,8 +171,9 @@ class FilamentPhysics:
         self._last: tuple[float, Array] | None = None
 
     @classmethod
-    def from_scene(cls, scene: Scene, strength: float | None = None) -> FilamentPhysics:
-        """Physics of ``scene`` with actuation strength ``strength`` (f or b1)."""
+    def from_scene(cls, scene: Scene, strength: Any = None) -> FilamentPhysics:
+        """Physics of ``scene`` with actuation strength ``strength`` (f or b1;
+        the pair ``(f, b1)`` for a two-actuation scene)."""
         return cls(scene, strength)
 
     @property
@@ -164,17 +186,64 @@ class FilamentPhysics:
         """Activity weight per segment (zeros for a passive scene)."""
         return self.par[P_W:].copy()
 
-    def params(self, strength: float) -> Array:
-        """``par`` with the actuation strength ``strength`` (f or b1) set."""
+    def _values(self, strength: Any) -> tuple[float, ...]:
+        """The strengths, one per parameter, of a scalar or a sequence."""
+        n = len(self.param_names)
+        if np.ndim(strength) == 0:
+            if n > 1:
+                raise ValueError(f"FilamentPhysics: scene {self.scene.name!r} has {n} actuation "
+                                 f"parameters {list(self.param_names)}; got one strength "
+                                 f"{strength!r}")
+            return (float(strength),) * n
+        vals = tuple(float(v) for v in np.asarray(strength, dtype=float).ravel())
+        if len(vals) != n:
+            raise ValueError(f"FilamentPhysics: expected {n} strengths "
+                             f"{list(self.param_names)}, got {len(vals)}")
+        return vals
+
+    def params(self, strength: Any) -> Array:
+        """``par`` with the actuation strength ``strength`` set: a number (f or
+        b1), or one value per parameter (``(f, b1)`` for a two-actuation scene)."""
         par = self._base.copy()
-        act = self.flags[F_ACT]
-        if act == ACT_FOLLOWER:
-            par[P_F] = strength * par[P_SCALE]
-        elif act == ACT_SQUIRMER:
-            par[P_B1] = strength * par[P_SCALE]
+        for slot, sc, v in zip(self.slots, self.scales, self._values(strength), strict=True):
+            par[slot] = v * sc
         return par
 
-    def params_cached(self, strength: float) -> Array:
+    def dparams(self, strength: Any, index: int | None = 0) -> Array:
+        """``d par / d s_index`` at ``strength``: ``params`` is affine in each
+        strength, so the difference at a unit step is the derivative (the
+        tangents' parameter column). ``index`` = the continued parameter's
+        position in :attr:`param_names` (None: 0)."""
+        vals = list(self._values(strength))
+        i = 0 if index is None else int(index)
+        if not 0 <= i < len(vals):
+            if not vals:
+                return np.zeros_like(self._base)
+            raise IndexError(f"FilamentPhysics.dparams: parameter index {i} out of range for "
+                             f"{list(self.param_names)}")
+        if len(vals) == 1:
+            # a single actuation: exactly the previous form
+            return self.params(vals[0] + 1.0) - self.params(vals[0])
+        up = list(vals)
+        up[i] += 1.0
+        # only slot i moves (the NaN P_SCALE of a mixed par is no derivative)
+        slot = self.slots[i]
+        d = np.zeros_like(self._base)
+        d[slot] = self.params(up)[slot] - self.params(vals)[slot]
+        return d
+
+    def strengths_of(self, par: Array) -> Any:
+        """The strength(s) ``par`` was built with (inverse of :meth:`params`):
+        a number for a single-actuation (or passive) scene, the tuple
+        ``(f, b1)`` for the two-actuation scene."""
+        if len(self.param_names) <= 1:
+            # at most one of P_F, P_B1 is non-zero (the previous form)
+            sc = par[P_SCALE]
+            return 0.0 if sc == 0.0 else float((par[P_F] + par[P_B1]) / sc)
+        return tuple(float(par[slot] / sc)
+                     for slot, sc in zip(self.slots, self.scales, strict=True))
+
+    def params_cached(self, strength: Any) -> Array:
         """:meth:`params`, memoised on the last strength (read-only result).
 
         Continuation and Jacobian columns call ``rhs`` many times at one
@@ -205,13 +274,14 @@ class FilamentPhysics:
 
     def active_loads(self, par: Array, X: Array, t: Array) -> tuple[Array, Array]:
         """(active forces, surface-flow velocity), each shaped like ``t``."""
-        act = self.flags[F_ACT]
+        act = int(self.flags[F_ACT])
         w = par[P_W:]
-        if act == ACT_FOLLOWER:
-            return _forces.follower_forces(t, w, par[P_F]), self._zero(t.shape)
-        if act == ACT_SQUIRMER:
-            return self._zero(t.shape), _sq.squirmer_velocity(X, t, w, self.a, par[P_B1], self.eta)
-        return self._zero(t.shape), self._zero(t.shape)
+        # bit mask: each effect when its bit is set (both: the loads add, Stokes)
+        FA = (_forces.follower_forces(t, w, par[P_F]) if act & ACT_FOLLOWER
+              else self._zero(t.shape))
+        Vsf = (_sq.squirmer_velocity(X, t, w, self.a, par[P_B1], self.eta)
+               if act & ACT_SQUIRMER else self._zero(t.shape))
+        return FA, Vsf
 
     def evaluate(self, u: Array, par: Array) -> tuple[Array, Array, Array]:
         """``(du/dt, lam, vel)`` of the model state ``u`` (planar ``phi`` or 3D ``U``)."""

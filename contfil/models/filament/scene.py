@@ -20,12 +20,29 @@ sub-table; only the named effects are built and computed::
     eta = 1.0
 
     [scene.actuation]
-    type = "follower_force"              # or "squirmer"
+    type = "follower_force"              # or "squirmer", "follower_force+squirmer"
     profile = "tip"                      # or "distributed"
     f = 0.0                              # strength (b1 for "squirmer")
 
     [scene.boundary]
     base = "clamped"
+
+Two actuations at once: ``type = "follower_force+squirmer"`` puts a follower
+force of strength ``f`` *and* a squirmer surface flow of strength ``b1`` on
+the same segments (one ``profile``, the same weights for both effects)::
+
+    [scene.actuation]
+    type = "follower_force+squirmer"
+    profile = "tip"
+    f = 0.0                              # both keys required
+    b1 = 2100.0
+
+Stokes flow is linear, so the two loads add (the follower forces enter the
+force balance, the surface flow the velocities). The model of such a scene
+has both parameters, ``param_names = ("f", "b1")``; a study names the one it
+continues (``[continuation] parameter``), the other stays at the scene's
+value. Single-actuation scenes are unchanged: one parameter, the same ``par``
+layout and the same flows (docs/decisions.md 46).
 
 Units: L = 1, so ``dL = 1/N`` and ``a = dL/dL_over_a``; K_B and eta are taken
 as given (1 in all paper scenes). Every key is checked; a malformed scene
@@ -46,6 +63,11 @@ _EFFECTS = ("geometry", "elasticity", "hydrodynamics", "actuation", "boundary")
 _TOP_KEYS = ("name",) + _EFFECTS
 _REQUIRED_EFFECTS = ("geometry", "elasticity", "hydrodynamics", "boundary")
 _STRENGTH = {"follower_force": "f", "squirmer": "b1"}
+#: The two-actuation type: follower force ``f`` and squirmer ``b1`` together.
+MIXED = "follower_force+squirmer"
+#: Parameters of each actuation type, in the model's ``param_names`` order.
+_PARAMS: dict[str, tuple[str, ...]] = {"follower_force": ("f",), "squirmer": ("b1",),
+                                       MIXED: ("f", "b1")}
 
 
 @dataclass(frozen=True)
@@ -64,6 +86,8 @@ class Scene:
     strength: float = 0.0
     base: str = "clamped"
     name: str = "filament"
+    #: b1 of the two-actuation scene (``strength`` is then its f); 0 otherwise
+    strength_b1: float = 0.0
 
     @property
     def L(self) -> float:
@@ -86,8 +110,29 @@ class Scene:
 
     @property
     def param_name(self) -> str | None:
-        """Name of the actuation parameter (``"f"``, ``"b1"``) or None."""
-        return None if self.actuation is None else _STRENGTH[self.actuation]
+        """Name of the one actuation parameter (``"f"``, ``"b1"``); None for
+        a passive scene and for the two-actuation scene (which has two:
+        :attr:`param_names`)."""
+        return None if self.actuation is None else _STRENGTH.get(self.actuation)
+
+    @property
+    def param_names(self) -> tuple[str, ...]:
+        """The actuation parameters: ``()``, ``("f",)``, ``("b1",)`` or ``("f", "b1")``."""
+        return () if self.actuation is None else _PARAMS[self.actuation]
+
+    @property
+    def strengths(self) -> tuple[float, ...]:
+        """The actuation strengths in :attr:`param_names` order."""
+        if self.actuation is None:
+            return ()
+        if self.actuation == MIXED:
+            return (self.strength, self.strength_b1)
+        return (self.strength,)
+
+    @property
+    def mixed(self) -> bool:
+        """Follower force and squirmer together (``"follower_force+squirmer"``)."""
+        return self.actuation == MIXED
 
     def replace(self, **changes: Any) -> Scene:
         """A copy with some fields changed (re-validated)."""
@@ -114,11 +159,8 @@ def _to_table(s: Scene) -> dict[str, Any]:
         "boundary": {"base": s.base},
     }
     if s.actuation is not None:
-        d["actuation"] = {
-            "type": s.actuation,
-            "profile": s.profile,
-            _STRENGTH[s.actuation]: s.strength,
-        }
+        d["actuation"] = {"type": s.actuation, "profile": s.profile}
+        d["actuation"].update(zip(s.param_names, s.strengths, strict=True))
     return d
 
 
@@ -208,14 +250,15 @@ def _parse(table: Mapping[str, Any]) -> Scene:
 
     act: str | None = None
     profile = "tip"
-    strength = 0.0
+    strengths = [0.0, 0.0]
     if "actuation" in table:
         ac = _table(table, "actuation", w)
-        act = _choice(ac, "type", f"{w}.actuation", tuple(_STRENGTH), None)
-        sname = _STRENGTH[act]
-        _check_keys(ac, ("type", "profile", sname), f"{w}.actuation")
+        act = _choice(ac, "type", f"{w}.actuation", tuple(_PARAMS), None)
+        snames = _PARAMS[act]
+        _check_keys(ac, ("type", "profile") + snames, f"{w}.actuation")
         profile = _choice(ac, "profile", f"{w}.actuation", ("tip", "distributed"), None)
-        strength = _number(ac, sname, f"{w}.actuation", None)
+        for i, sname in enumerate(snames):
+            strengths[i] = _number(ac, sname, f"{w}.actuation", None)
 
     b = _table(table, "boundary", w)
     _check_keys(b, ("base",), f"{w}.boundary")
@@ -231,9 +274,10 @@ def _parse(table: Mapping[str, Any]) -> Scene:
         eta=eta,
         actuation=act,
         profile=profile,
-        strength=strength,
+        strength=strengths[0],
         base=base,
         name=name,
+        strength_b1=strengths[1],
     )
 
 

@@ -67,8 +67,20 @@ def _scene_of(obj: Any) -> Scene:
     raise TypeError(f"expected a Scene or a model with a .scene attribute, got {type(obj)!r}")
 
 
-def _strength_from_params(model: Any, scene: Scene, p: Array | None) -> float:
-    """Actuation strength from the model's parameter vector (or the scene's)."""
+def _strength_from_params(model: Any, scene: Scene, p: Array | None) -> Any:
+    """Actuation strength from the model's parameter vector (or the scene's):
+    a number, or for a two-actuation scene the pair ``(f, b1)``."""
+    if len(scene.param_names) > 1:
+        if p is None:
+            return scene.strengths
+        p = np.atleast_1d(np.asarray(p, dtype=float))
+        names = tuple(getattr(model, "param_names", ()) or ())
+        if all(n in names for n in scene.param_names):
+            return tuple(float(p[names.index(n)]) for n in scene.param_names)
+        if p.size != len(scene.param_names):
+            raise ValueError(f"expected {len(scene.param_names)} parameters "
+                             f"{list(scene.param_names)}, got {p.size}")
+        return tuple(float(v) for v in p)
     if p is None:
         return scene.strength
     p = np.atleast_1d(np.asarray(p, dtype=float))
@@ -121,7 +133,8 @@ class BDF2Stepper:
         Parameter vector of the model (its actuation strength is used);
         ``None`` uses the scene's strength.
     strength:
-        Alternatively the actuation strength itself (f or b1).
+        Alternatively the actuation strength itself (f or b1; the pair
+        ``(f, b1)`` for a two-actuation scene).
     jacobian:
         ``"full"`` (default): approximate Jacobian with the scene's full
         mobility matrix and squirming interactions frozen at the predictor;
@@ -149,7 +162,7 @@ class BDF2Stepper:
         max_iter: int = 60,
         max_refresh: int = 3,
         p: Array | None = None,
-        strength: float | None = None,
+        strength: Any = None,
         jacobian: str = "full",
         reuse: bool = True,
         reuse_limit: int = 8,
@@ -160,7 +173,7 @@ class BDF2Stepper:
             strength = _strength_from_params(model_or_scene, self.scene, p)
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"BDF2Stepper: dt must be a positive finite number, got {dt!r}")
-        if not (np.isfinite(strength)):
+        if not np.all(np.isfinite(strength)):
             raise NonFiniteError(f"BDF2Stepper: actuation strength is {strength!r}")
         # the model's own physics object when there is one (assembled once
         # from the scene); only the strength is set here
@@ -169,7 +182,7 @@ class BDF2Stepper:
             phys = FilamentPhysics(self.scene)
         self.phys = phys
         #: the physics parameters at this stepper's strength (kernels/effects.py layout)
-        self.par = phys.params(float(strength))
+        self.par = phys.params(strength)
         self.dt = float(dt)
         self.tol = float(tol)
         self.max_iter = int(max_iter)

@@ -141,6 +141,7 @@ def flow_tangent(
     tol: float = 1e-12,
     fd: str = "central",
     increments: str = "analytic",
+    param_index: int | None = None,
     **stepper_kw: Any,
 ) -> FlowTangent:
     """``phi_T(u)``, ``Dphi_T(u) V``, ``dphi/dT`` and ``dphi/ds`` in one sweep.
@@ -160,6 +161,10 @@ def flow_tangent(
         Number of equal steps (``default_steps(T)`` if None), as the flow.
     want_T, want_p:
         Also ``dphi/dT`` and the derivative in the actuation strength.
+    param_index:
+        Which model parameter ``dp`` is the derivative in (its position in
+        ``param_names``; None: the first). A single-actuation model has one;
+        a two-actuation model ``(f, b1)``.
     samples:
         ``k > 0``: also the states at ``t = j T/k``, j = 0..k-1 (``steps``
         must be a multiple of ``k``).
@@ -205,7 +210,7 @@ def flow_tangent(
         want_T = want_p = False
         tz, tr = normal_maps(N)
         st = BDF2Stepper(ph.scene.replace(dimension="planar"), T / n, tol=tol,
-                         strength=_strength(st.par), **stepper_kw)
+                         strength=ph.strengths_of(st.par), **stepper_kw)
         st_start = U0[1::3]
     else:
         tz, tr = st._zmap, st._rmap
@@ -233,8 +238,9 @@ def flow_tangent(
         ds[-1] = 1.0
     # the tangent uses the model's own (3D or planar) physics, also when a
     # planar stepper carries the orbit
-    par = ph.params(_strength(st.par))
-    dpar = ph.params(_strength(st.par) + 1.0) - par
+    s_ = st.phys.strengths_of(st.par)
+    par = ph.params(s_)
+    dpar = ph.dparams(s_, param_index)
     every = n // samples if samples else 0
     key = _trajectory_key(st, n)
     rec = _TRAJECTORY.get(key)
@@ -289,7 +295,9 @@ def flow_tangent(
 
 
 def _strength(par: Array) -> float:
-    """The actuation strength of ``par`` (inverse of ``FilamentPhysics.params``;
-    at most one of ``P_F``, ``P_B1`` is non-zero)."""
+    """The actuation strength of a single-actuation ``par`` (inverse of
+    ``FilamentPhysics.params``; at most one of ``P_F``, ``P_B1`` is non-zero).
+    A two-actuation ``par`` has ``P_SCALE = NaN`` and gives NaN here: its
+    strengths are ``FilamentPhysics.strengths_of(par)``, which the sweeps use."""
     sc = par[P_SCALE]
     return 0.0 if sc == 0.0 else float((par[P_F] + par[P_B1]) / sc)

@@ -63,7 +63,12 @@ from ..kernels.geometry import frames_from_state, positions, state_from_frames, 
 from ..physics import FilamentPhysics, embed_planar, project_planar
 from . import STEPS_PER_PERIOD, LastTrajectory, default_steps, state_of_frames, step_count
 from .bdf2_stepper import _maps, _scene_of, _strength_from_params
-from .bdf2_tangent import _rotations_from_state, _state_from_rotations, _strength, normal_maps
+from .bdf2_tangent import (  # noqa: F401 (_strength: kept for callers)
+    _rotations_from_state,
+    _state_from_rotations,
+    _strength,
+    normal_maps,
+)
 
 Array = NDArray[np.float64]
 
@@ -153,20 +158,24 @@ class RadauStepper:
     def __init__(self, model_or_scene: Any, dt: float, stages: int = 3, tol: float = 1e-10,
                  max_iter: int = 25, rate: float = 0.5, newton: str = "full",
                  reuse: bool = False,
-                 p: Array | None = None, strength: float | None = None) -> None:
+                 p: Array | None = None, strength: Any = None) -> None:
         self.scene = _scene_of(model_or_scene)
         if strength is None:
             strength = _strength_from_params(model_or_scene, self.scene, p)
         if not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"RadauStepper: dt must be a positive finite number, got {dt!r}")
-        if not np.isfinite(strength):
+        if not np.all(np.isfinite(strength)):
             raise NonFiniteError(f"RadauStepper: actuation strength is {strength!r}")
         phys = getattr(model_or_scene, "physics", None)
         if not isinstance(phys, FilamentPhysics) or phys.scene is not self.scene:
             phys = FilamentPhysics(self.scene)
         self.phys = phys
-        self.par = phys.params(float(strength))
-        self.dpar = phys.params(float(strength) + 1.0) - self.par
+        #: the actuation strength(s) the stepper was built with
+        self.strength = strength
+        self.par = phys.params(strength)
+        #: d par / d(first parameter); :func:`flow_tangent` takes the column
+        #: of the continued one (``param_index``) from ``phys.dparams``
+        self.dpar = phys.dparams(strength, 0)
         self.dt = float(dt)
         self.tol = float(tol)
         self.max_iter = int(max_iter)
@@ -495,6 +504,7 @@ def flow_tangent(
     want_T: bool = True,
     want_p: bool = True,
     samples: int = 0,
+    param_index: int | None = None,
     **stepper_kw: Any,
 ) -> FlowTangent:
     """``phi_T(u)``, ``Dphi_T(u) V``, ``dphi/dT`` and ``dphi/ds`` in one Radau sweep.
@@ -502,7 +512,8 @@ def flow_tangent(
     The same contract as :func:`.bdf2_tangent.flow_tangent` (directions
     ``V`` (dim, k), ``None`` = the monodromy; a 3D model at a planar state
     with all directions normal to the plane propagates only that block along
-    the planar flow, without ``dT``/``dp``; ``samples`` = states at ``j T/k``).
+    the planar flow, without ``dT``/``dp``; ``samples`` = states at ``j T/k``;
+    ``param_index``: the model parameter of ``dp``, default the first).
     Per step: the stepper's own Newton solve, then the exact stage Jacobian
     at the converged stages (implicit function theorem), factored once for
     all directions.
@@ -526,16 +537,19 @@ def flow_tangent(
         tz, tr = normal_maps(N)
         tangent_phys = ph
         st = RadauStepper(ph.scene.replace(dimension="planar"), T / n,
-                          strength=_strength(st.par), **stepper_kw)
+                          strength=ph.strengths_of(st.par), **stepper_kw)
         st.reset(U0[1::3])
         # the tangent uses the 3D physics (same par layout: planar flag aside)
-        st_par = tangent_phys.params(_strength(st.par))
-        st_dpar = tangent_phys.params(_strength(st.par) + 1.0) - st_par
+        s_ = st.phys.strengths_of(st.par)
+        st_par = tangent_phys.params(s_)
+        st_dpar = tangent_phys.dparams(s_, param_index)
         flags = tangent_phys.flags
     else:
         tz, tr = st._zmap, st._rmap
         st.reset(u)
-        st_par, st_dpar, flags = st.par, st.dpar, ph.flags
+        st_par, flags = st.par, ph.flags
+        # d par / d(the continued parameter)
+        st_dpar = st.dpar if not param_index else ph.dparams(st.strength, param_index)
     kdir = V.shape[1]
     nd = kdir + int(want_T) + int(want_p)
     nu = int(_kt.reduced_counts(tz, tr, N)[0])

@@ -275,7 +275,7 @@ def velocity_frame_jacobian(
         K = rpy_apply_jacobian_masked(X, par[P_A], par[P_ETA], F, T, rmask, xmask)
     else:
         K = np.zeros((6 * N, 3 * N))
-    squirm = flags[F_ACT] == ACT_SQUIRMER and par[P_B1] != 0.0
+    squirm = (flags[F_ACT] & ACT_SQUIRMER) != 0 and par[P_B1] != 0.0
     if squirm:
         KX, Kt = squirmer_velocity_jacobian(X, t, weights(par, N), par[P_A], par[P_B1],
                                             par[P_ETA])
@@ -285,7 +285,7 @@ def velocity_frame_jacobian(
     _suffix_positions(K, t, dL, W, rows, cmask)
     # local load changes: dF (rows 3m..), dT (rows 3N + 3n, n = m-1..m+1)
     Da, Db = elastic_moment_jacobian(q, dL, par[P_KB], par[P_KT])
-    fol = flags[F_ACT] == ACT_FOLLOWER
+    fol = (flags[F_ACT] & ACT_FOLLOWER) != 0
     w = weights(par, N)
     C = np.empty((3, 3))
     L = np.empty(3)
@@ -451,7 +451,7 @@ def velocity_frame_jacobian_rows(
                 for k in range(3):
                     if k != c and t[m, 3 - k - c] != 0.0:
                         xmask[k] = True
-    squirm = flags[F_ACT] == ACT_SQUIRMER and par[P_B1] != 0.0
+    squirm = (flags[F_ACT] & ACT_SQUIRMER) != 0 and par[P_B1] != 0.0
     if flags[F_HYDRO] == HYD_RPY:
         K = rpy_apply_jacobian_rows(X, par[P_A], par[P_ETA], F, T, rinv, nr, xmask)
     else:
@@ -466,7 +466,7 @@ def velocity_frame_jacobian_rows(
                     K[ii, j] += KX[i, j]
     _suffix_positions_rows(K, t, dL, W, cmask)
     Da, Db = elastic_moment_jacobian_cols(q, dL, par[P_KB], par[P_KT], cmask)
-    fol = flags[F_ACT] == ACT_FOLLOWER
+    fol = (flags[F_ACT] & ACT_FOLLOWER) != 0
     w = weights(par, N)
     C = np.empty((3, 3))
     Cs = np.empty((N, 3, 3))
