@@ -272,3 +272,94 @@ def test_cusp_curve_ends_on_second_range(cusp):
     assert end.point.extra["b2"] == pytest.approx(0.8, abs=1e-10)
     assert br.points[-1] is end.point
     assert br.meta["stop_reason"] == "branch_end"
+
+
+# ------------------------------------------------------ spec, store, graph
+STORED = """
+[model]
+name = "bautin_2d"
+[continuation]
+range = [-0.5, 0.5]
+ds = 0.05
+ds_max = 0.1
+[explorer]
+depth = 1
+[output]
+plots = false
+graphml = false
+fsync = false
+"""
+
+
+def _curve_spec(start: str = 'special = "LPC1"', cont: str = 'second_parameter = "mu"') -> str:
+    return ('[model]\nname = "bautin_2d"\n[start]\nrun = "stored"\n' + start + "\nsteps = 50\n"
+            '[continuation]\nparameter = "beta2"\n' + cont + "\nrange = [0.5, 1.6]\n"
+            "ds = 0.1\nds_max = 0.2\n[explorer]\ndepth = 0\n"
+            "[output]\nplots = false\ngraphml = false\nfsync = false\n")
+
+
+@pytest.fixture(scope="module")
+def stored_bautin(tmp_path_factory):
+    from contfil.app.study import run_study
+    from contfil.explore.progress import ProgressDisplay
+
+    root = tmp_path_factory.mktemp("lpc_stored")
+    (root / "stored.toml").write_text(STORED)
+    run_study(root / "stored.toml", out=root / "stored", progress=ProgressDisplay(enabled=False))
+    return root
+
+
+def test_spec_starts_a_curve_from_a_stored_fold(stored_bautin, capsys):
+    from contfil.app.cli import main
+    from contfil.store.run_store import load_run_graph
+
+    spec = stored_bautin / "curve.toml"
+    spec.write_text(_curve_spec(cont='second_parameter = "mu"\nsecond_range = [-1.0, 0.0]'))
+    assert main(["run", str(spec), "--out", str(stored_bautin / "curve")]) == 0
+    out = capsys.readouterr().out
+    assert "cycle_fold_curve" in out and "from LPC1 (cycle_fold) of run stored: mu=-0.25" in out
+    g = load_run_graph(stored_bautin / "curve")
+    (bid,) = g.branch_ids()
+    br = g.branch(bid)
+    assert br.kind == "cycle_fold_curve" and br.param == "beta2" and len(br.points) >= 4
+    for pt in br.points:
+        assert pt.extra["mu"] == pytest.approx(-pt.p**2 / 4, abs=1e-8)
+        assert pt.params[0] == pt.extra["mu"] and pt.params[1] == pt.p
+        assert pt.u @ pt.u == pytest.approx(pt.p / 2, abs=1e-8)
+    assert br.points[-1].p == pytest.approx(1.6)
+    # joined to the stored fold it started from
+    (sid,) = [s for s, _ in g.g.in_edges(bid)]
+    node = g.g.nodes[sid]
+    assert node["kind"] == CYCLE_FOLD and node["stored_label"] == "LPC1"
+    assert g.g.edges[sid, bid]["role"] == "born"
+
+
+@pytest.mark.parametrize("start, cont, match", [
+    ('special = "LPC9"', 'second_parameter = "mu"', "start.special: no special point 'LPC9'"),
+    ('special = "H1"', 'second_parameter = "mu"', "H1 is a hopf, not a fold of cycles"),
+    ('special = "LPC1"', 'second_parameter = "beta2"', "must differ"),
+    ('special = "LPC1"', 'second_parameter = "nu"', "no parameter 'nu'"),
+    ('special = "LPC1"', "", "needs continuation.second_parameter"),
+    ('branch = "B1"', 'second_parameter = "mu"', "set [start] special"),
+    ('special = "LPC1"', 'second_parameter = "mu"\nsecond_range = [0.0, 1.0]',
+     "second_range: the start has mu = -0.25"),
+])
+def test_malformed_curve_specs_are_one_line(stored_bautin, capsys, start, cont, match):
+    from contfil.app.cli import main
+
+    spec = stored_bautin / "bad.toml"
+    spec.write_text(_curve_spec(start, cont))
+    assert main(["run", str(spec), "--out", str(stored_bautin / "bad")]) != 0
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith("contfil: error:") and match in err, err
+
+
+def test_one_parameter_model_is_refused(stored_bautin):
+    from contfil.explore.start import stored_fold_curve_start
+
+    class One:
+        name, param_names, dim = "one", ("mu",), 2
+
+    with pytest.raises(SpecError, match="has one parameter"):
+        stored_fold_curve_start(stored_bautin / "stored", One(), special="LPC1", second="nu",
+                                param="mu")
