@@ -185,6 +185,13 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "parameter": (_string, None, False,
                       "continuation parameter (default: the scene's actuation strength)"),
         "start": (_number(), None, False, "starting value (default: from scene/model)"),
+        "second_parameter": (_string, None, False,
+                             "second parameter of a curve of folds of cycles (with [start] "
+                             "special = a stored fold of cycles): the curve is continued in "
+                             "`parameter`, this one is an unknown"),
+        "second_range": (_range, None, False,
+                         "[low, high] window of the second parameter; the curve ends where "
+                         "it leaves it"),
         "range": (_range, None, True, "[low, high] window; branches stop outside it"),
         "direction": (_choice(1, -1), 1, False, "+1 or -1: first sense of the root branch"),
         "kind": (_choice("equilibrium"), "equilibrium", False, "kind of the root branch"),
@@ -254,9 +261,13 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "run": (_string, None, True,
                 "run directory of an earlier `contfil run` (relative to the spec file's "
                 "folder)"),
-        "branch": (_string, None, True,
+        "branch": (_string, None, False,
                    "stored branch: its id ('B2') or a kind only one branch has "
-                   "('periodic_orbit')"),
+                   "('periodic_orbit'); required unless `special` is given"),
+        "special": (_string, None, False,
+                    "a stored special point of kind cycle_fold, by label ('LPC1') or id "
+                    "('S3'): starts a curve of folds of cycles (with "
+                    "continuation.second_parameter)"),
         "point": (_start_point, "last", False,
                   f"point on it: one of {list(START_POINT_WORDS)} (branch order) or a "
                   "parameter value (the nearest point)"),
@@ -396,6 +407,22 @@ def parse_spec(doc: Mapping[str, Any], path: str | Path | None = None, text: str
             if key in doc.get("continuation", {}):
                 raise SpecError(f"continuation.{key}: not with [start] (the stored state is "
                                 "the starting point and its branch gives the kind)")
+        if start["branch"] is None and start["special"] is None:
+            raise SpecError("start.branch: missing; the stored branch (or start.special, a "
+                            "stored fold of cycles)")
+    special = (start or {}).get("special")
+    if (special is None) != (cont["second_parameter"] is None):
+        if special is None:
+            raise SpecError("continuation.second_parameter: a curve of folds of cycles starts "
+                            "from a stored fold: set [start] special = \"LPC1\" (its label)")
+        raise SpecError("start.special: a curve of folds of cycles needs "
+                        "continuation.second_parameter (the parameter that moves with it)")
+    if cont["second_range"] is not None and cont["second_parameter"] is None:
+        raise SpecError("continuation.second_range: only with continuation.second_parameter")
+    if (cont["second_parameter"] is not None
+            and cont["second_parameter"] == cont["parameter"]):
+        raise SpecError(f"continuation.second_parameter: must differ from "
+                        f"continuation.parameter, both are {cont['parameter']!r}")
     return Spec(continuation=cont, explorer=expl, output=out, simulate=sim, scene=scene,
                 model=model, integrator=integ, start=start,
                 path=None if path is None else Path(path), text=text,

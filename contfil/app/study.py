@@ -20,7 +20,7 @@ from contfil.explore.continuer import engine_continuer
 from contfil.explore.explorer import Explorer, ExplorerSettings
 from contfil.explore.progress import ProgressDisplay
 from contfil.explore.seeds import Seed
-from contfil.explore.start import stored_start
+from contfil.explore.start import stored_fold_curve_start, stored_start
 from contfil.explore.switchers import default_switchers
 from contfil.graph.branch_graph import BranchGraph
 from contfil.models.registry import ModelInfo
@@ -136,6 +136,15 @@ def root_seed(spec: Spec, info: ModelInfo) -> Seed:
     the stored state ``[start]`` names (:func:`contfil.explore.start.stored_start`)."""
     model = info.model
     param = continuation_parameter(spec, info)
+    if spec.start is not None and spec.start.get("special") is not None:
+        st, c = spec.start, spec.continuation
+        seed, _ = stored_fold_curve_start(
+            start_run_dir(spec), model, special=st["special"], second=c["second_parameter"],
+            second_range=None if c["second_range"] is None else tuple(c["second_range"]),
+            branch=st["branch"], subspace=st["subspace"], steps=st["steps"],
+            direction=int(c["direction"]), both_directions=bool(c["both_directions"]),
+            p_range=None if c["range"] is None else tuple(c["range"]), param=param)
+        return seed
     if spec.start is not None:
         st, c = spec.start, spec.continuation
         seed, choice = stored_start(

@@ -6,7 +6,7 @@ orbits)::
     from contfil.engine import (
         EquilibriumProblem, RotatingWaveProblem, PeriodicOrbitProblem,
         RelativePeriodicOrbitProblem, MultipleShootingProblem,
-        RelativeMultipleShootingProblem, CollocationProblem,
+        RelativeMultipleShootingProblem, CollocationProblem, CycleFoldCurveProblem,
         Continuation, ContinuationSettings, ContinuationState, continue_branch,
         Event, EventContext, FoldEvent, BranchPointEvent, HopfEvent, cycle_events,
         switch_at_branch_point, branch_point_tangents, hopf_data,
@@ -44,6 +44,7 @@ from contfil.engine.linalg.hookstep import hookstep_corrector, newton_hookstep
 from contfil.engine.linalg.newton import NewtonInfo, newton_dense, newton_krylov
 from contfil.engine.problems.base import Problem, Stability
 from contfil.engine.problems.collocation import CollocationProblem
+from contfil.engine.problems.cycle_fold_curve import CycleFoldCurveProblem
 from contfil.engine.problems.equilibrium import EquilibriumProblem
 from contfil.engine.problems.multiple_shooting import (
     MultipleShootingProblem,
@@ -79,6 +80,7 @@ __all__ = [
     "ContinuationSettings",
     "ContinuationState",
     "CycleBranchPointEvent",
+    "CycleFoldCurveProblem",
     "CycleFoldEvent",
     "EquilibriumProblem",
     "Event",

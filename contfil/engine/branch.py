@@ -18,6 +18,9 @@ EQUILIBRIUM = "equilibrium"
 ROTATING_WAVE = "rotating_wave"
 PERIODIC_ORBIT = "periodic_orbit"
 RELATIVE_PERIODIC_ORBIT = "relative_periodic_orbit"
+#: a curve of folds of cycles in two parameters (points are folds; ``p`` is
+#: the first parameter, the second is in ``Point.extra`` and ``Point.params``)
+CYCLE_FOLD_CURVE = "cycle_fold_curve"
 
 # Kinds of special point.
 FOLD = "fold"  # saddle-node of equilibria
@@ -29,6 +32,10 @@ CYCLE_BRANCH_POINT = "cycle_branch_point"
 PERIOD_DOUBLING = "period_doubling"
 TORUS = "torus"  # Neimark-Sacker
 ENDPOINT = "endpoint"
+#: on a curve of folds of cycles: the fold's quadratic coefficient vanishes
+CUSP_OF_CYCLES = "cusp_of_cycles"
+#: a two-parameter curve left its range of the second parameter (terminal)
+SECOND_RANGE_END = "second_range_end"
 
 
 def _enc(a: Any) -> Any:

@@ -298,6 +298,12 @@ class Explorer:
             bid, is_new = self.graph.add_branch(branch)
         if task.parent is not None:
             self.graph.link(task.parent, bid)
+        born = task.seed.info.get("born_at") if task.parent is None else None
+        if born:
+            # a curve of folds of cycles: joined to the stored fold it started from
+            self.graph.add_origin(SpecialPoint.from_dict(born["special_point"]), bid,
+                                  stored_label=str(born["label"]), stored_run=str(born["run"]),
+                                  stored_param=str(born.get("param", "p")))
         if not is_new:
             emit(BranchDone(k, "duplicate", bid, self.graph))
             return new_tasks

@@ -233,25 +233,133 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
     and the resolved :class:`StartChoice`.
     """
     run = Path(run)
-    if not run.is_dir():
-        raise SpecError(f"start.run: no run directory {str(run)!r}")
-    try:
-        graph = load_run_graph(run)
-    except ContfilError as exc:
-        raise SpecError(f"start.run: {exc}") from None
+    graph = _stored_graph(run)
     bid = select_branch(graph, branch)
     br = graph.branch(bid)
-    names = list(model.param_names)
     study = br.param if param is None else str(param)
-    n_stored = int(np.size(br.points[0].params)) if br.points else len(names)
-    # only a model that maps stored parameters (``stored_params``) remaps; any
-    # other keeps the checks below (state size, the study's parameter)
-    remap = ((study != br.param or n_stored != len(names))
-             and callable(getattr(model, "stored_params", None)))
+    remap = _remaps(model, br, study)
     # a remapped start is chosen on the stored parameter, the study's window
     # applies to the study's parameter (checked below)
     k = select_point(br, point, None if remap else p_range)
     pt = br.points[k]
+    problem, x0, p0, sub = _stored_problem(run, model, br, bid, pt, f"point {k}", study,
+                                           p_range, remap, subspace, steps, segments)
+    if isinstance(problem, MultipleShootingProblem):
+        # the other segment starts flowed from the stored phase origin
+        x0 = problem.from_single(x0, p0)
+    choice = StartChoice(run=run, branch_id=bid, index=k, p=float(pt.p), subspace=sub)
+    seed = Seed(problem=problem, x0=x0, p0=p0, direction=int(direction),
+                both_directions=both_directions, label=f"{bid}[{k}] of {run.name}",
+                info={"start": choice.describe()})
+    return seed, choice
+
+
+def stored_fold_curve_start(run: str | Path, model: Any, *, special: str, second: str,
+                            second_range: tuple[float, float] | None = None,
+                            branch: str | None = None, subspace: str = "auto",
+                            steps: int | None = None, direction: int = 1,
+                            both_directions: bool = False,
+                            p_range: tuple[float, float] | None = None,
+                            param: str | None = None) -> tuple[Seed, StartChoice]:
+    """The root seed of a curve of folds of cycles in ``(param, second)``
+    (:class:`~contfil.engine.problems.cycle_fold_curve.CycleFoldCurveProblem`)
+    from the stored special point ``special`` (label ``"LPC1"`` or id
+    ``"S3"``) of kind ``cycle_fold``: the fold's cycle, on the shooting
+    problem of its branch (as :func:`stored_start` builds it, single
+    shooting), continued in ``param`` with ``second`` an unknown.
+    ``seed.info["born_at"]`` holds the special point (the explorer joins the
+    curve to it in the new run's graph). Bad input is a :class:`SpecError`."""
+    from contfil.engine.branch import CYCLE_FOLD
+    from contfil.engine.problems.cycle_fold_curve import CycleFoldCurveProblem
+
+    run = Path(run)
+    graph = _stored_graph(run)
+    try:
+        sid = graph.special_id(str(special))
+    except ContfilError as exc:
+        raise SpecError(f"start.special: {exc}") from None
+    sp = graph.special_point(sid)
+    label = graph.label(sid)
+    if sp.kind != CYCLE_FOLD:
+        raise SpecError(f"start.special: {label} is a {sp.kind}, not a fold of cycles "
+                        f"(cycle_fold); a curve of folds starts from one")
+    on = [b for b in graph.g.predecessors(sid) if graph.g.nodes[b].get("type") == "branch"]
+    if branch is not None:
+        bid = select_branch(graph, branch)
+        if bid not in on:
+            raise SpecError(f"start.branch: {label} is not on branch {bid} (it is on {on})")
+    elif on:
+        bid = on[0]
+    else:
+        raise SpecError(f"start.special: {label} lies on no stored branch")
+    br = graph.branch(bid)
+    if br.kind not in ("periodic_orbit", "relative_periodic_orbit"):
+        raise SpecError(f"start.special: {label} lies on a {br.kind} branch; a curve of folds "
+                        "of cycles needs a cycle branch")
+    names = list(model.param_names)
+    study = br.param if param is None else str(param)
+    if second == study:
+        raise SpecError(f"continuation.second_parameter: must differ from the continued "
+                        f"parameter, both are {second!r}")
+    if len(names) < 2:
+        raise SpecError(f"continuation.second_parameter: model {model.name!r} has one "
+                        f"parameter {names}; a curve of folds needs two")
+    if second not in names:
+        raise SpecError(f"continuation.second_parameter: model {model.name!r} has no "
+                        f"parameter {second!r}; known: {names}")
+    remap = _remaps(model, br, study)
+    base, x0, p0, sub = _stored_problem(run, model, br, bid, sp.point, label, study, p_range,
+                                        remap, subspace, steps, 1, any_param=True)
+    try:
+        curve = CycleFoldCurveProblem(base, second, second_range=second_range)
+    except SpecError as exc:
+        raise SpecError(f"continuation.second_parameter: {exc}") from None
+    p2 = float(base.params_at(p0)[names.index(second)])
+    y0 = curve.start_from(x0, p0, p2)
+    if second_range is not None and not second_range[0] <= p2 <= second_range[1]:
+        raise SpecError(f"continuation.second_range: the start has {second} = {p2:.6g}, "
+                        f"outside {list(second_range)}")
+    choice = StartChoice(run=run, branch_id=bid, index=int(sp.index), p=float(sp.point.p),
+                         subspace=sub)
+    born = {"label": label, "id": sid, "run": str(run), "param": br.param,
+            "special_point": sp.to_dict()}
+    seed = Seed(problem=curve, x0=y0, p0=p0, direction=int(direction),
+                both_directions=both_directions, label=f"{label} ({bid}) of {run.name}",
+                info={"start": {**choice.describe(), "special": label,
+                                "second_parameter": second},
+                      "born_at": born})
+    return seed, choice
+
+
+def _stored_graph(run: Path) -> BranchGraph:
+    if not run.is_dir():
+        raise SpecError(f"start.run: no run directory {str(run)!r}")
+    try:
+        return load_run_graph(run)
+    except ContfilError as exc:
+        raise SpecError(f"start.run: {exc}") from None
+
+
+def _remaps(model: Any, br: Branch, study: str) -> bool:
+    """Whether the stored parameters are mapped onto the model's (module
+    docstring): only a model with ``stored_params`` remaps; any other keeps
+    the checks of :func:`_stored_problem` (state size, the study's parameter)."""
+    names = list(model.param_names)
+    n_stored = int(np.size(br.points[0].params)) if br.points else len(names)
+    return ((study != br.param or n_stored != len(names))
+            and callable(getattr(model, "stored_params", None)))
+
+
+def _stored_problem(run: Path, model: Any, br: Branch, bid: str, pt: Any, what: str,
+                    study: str, p_range: tuple[float, float] | None, remap: bool,
+                    subspace: str, steps: int | None, segments: int, any_param: bool = False
+                    ) -> tuple[Any, np.ndarray, float, str | None]:
+    """The problem of the stored point ``pt`` of branch ``bid`` in the study's
+    parameter, its single-shooting unknowns ``x0`` (state, period, drift), the
+    start value ``p0`` and the subspace it is solved in. ``any_param``: the
+    study may continue any stored parameter (a curve of folds), not only the
+    stored branch's, without a remap."""
+    names = list(model.param_names)
     if remap:
         params = _mapped_params(run, model, br.param, np.asarray(pt.params, dtype=float))
         if study not in names:
@@ -265,9 +373,16 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
         if br.param not in names:
             raise SpecError(f"start.branch: the stored branch is continued in {br.param!r}, a "
                             f"parameter model {model.name!r} does not have")
-        # the stored branch's own parameter (a caller checks it is the study's)
-        study = br.param
-        params, p0 = np.asarray(pt.params, dtype=float), float(pt.p)
+        params = np.asarray(pt.params, dtype=float)
+        if any_param and study in names and params.size == len(names):
+            # a curve of folds may be continued in any of the stored parameters
+            p0 = float(params[names.index(study)])
+            if p_range is not None and not p_range[0] <= p0 <= p_range[1]:
+                raise SpecError(f"start.special: the fold has {study} = {p0:.6g}, outside "
+                                f"continuation.range {list(p_range)}")
+        else:
+            # the stored branch's own parameter (a caller checks it is the study's)
+            study, p0 = br.param, float(pt.p)
     u = np.asarray(pt.u, dtype=float)
     if u.size != int(model.dim):
         raise SpecError(f"start.run: stored states have {u.size} entries, model "
@@ -287,17 +402,10 @@ def stored_start(run: str | Path, model: Any, *, branch: str, point: str | float
     multi = isinstance(problem, MultipleShootingProblem)
     n_single = problem.dim + problem.n_extra if multi else problem.n
     if x0.size != n_single:
-        raise SpecError(f"start.branch: point {k} of {bid} has {x0.size} unknowns, its "
+        raise SpecError(f"start.branch: {what} of {bid} has {x0.size} unknowns, its "
                         f"{br.kind} problem {n_single} (the stored point lacks "
                         f"{['omega', 'period', 'drift']} data)")
-    if multi:
-        # the other segment starts flowed from the stored phase origin
-        x0 = problem.from_single(x0, p0)
-    choice = StartChoice(run=run, branch_id=bid, index=k, p=float(pt.p), subspace=sub)
-    seed = Seed(problem=problem, x0=x0, p0=p0, direction=int(direction),
-                both_directions=both_directions, label=f"{bid}[{k}] of {run.name}",
-                info={"start": choice.describe()})
-    return seed, choice
+    return problem, x0, p0, sub
 
 
 def _mapped_params(run: Path, model: Any, stored_param: str, values: np.ndarray) -> np.ndarray:

@@ -81,6 +81,7 @@ import numpy as np
 
 from contfil.engine.branch import (
     BRANCH_POINT,
+    CUSP_OF_CYCLES,
     CYCLE_BRANCH_POINT,
     CYCLE_FOLD,
     DOUBLE_HOPF,
@@ -88,6 +89,7 @@ from contfil.engine.branch import (
     FOLD,
     HOPF,
     PERIOD_DOUBLING,
+    SECOND_RANGE_END,
     TORUS,
     Branch,
     Point,
@@ -119,6 +121,9 @@ SP_LABELS = {
     # parent's subspace, collapse onto a rotating wave
     "subspace_reentry": "RE",
     "rotating_wave_collapse": "CRW",
+    # on a curve of folds of cycles (two parameters)
+    CUSP_OF_CYCLES: "CPC",
+    SECOND_RANGE_END: "EP2",
 }
 
 #: Kinds of a classified-attractor ("state") node and their labels.
@@ -132,7 +137,7 @@ STATE_KINDS = {
 }
 
 # Kinds no switching method exists for (yet): kept as dead-end nodes.
-NOT_SWITCHABLE = frozenset({TORUS, ENDPOINT})
+NOT_SWITCHABLE = frozenset({TORUS, ENDPOINT, CUSP_OF_CYCLES, SECOND_RANGE_END})
 
 #: Graph attribute ``contfil_format`` of a GraphML export: names the
 #: attribute encoding described in the module docstring (bump on change).
@@ -340,6 +345,22 @@ class BranchGraph:
             self.g.add_edge(bid, sid, role="on", index=int(sp.index))
         return sid, is_new
 
+    def add_origin(self, sp: SpecialPoint, bid: str, **attrs: Any) -> str:
+        """Add special point ``sp`` of another run (the stored fold a curve of
+        folds of cycles started from) as a node joined to branch ``bid`` by
+        a ``born`` edge; ``attrs`` (e.g. ``stored_label``, ``stored_run``) go
+        on the node. The same bifurcation already in the graph is reused."""
+        sid = self.find_special_point(sp)
+        if sid is None:
+            sid = f"S{len(self._sps)}"
+            self._sps[sid] = sp
+            self.g.add_node(sid, type="special", kind=sp.kind, label=self._new_label(sp.kind),
+                            p=float(sp.point.p), switchable=False, switched=True,
+                            stable=sp.point.stable if sp.point.stable is not None else False,
+                            **attrs)
+        self.link(sid, bid)
+        return sid
+
     def link(self, sid: str, bid: str) -> None:
         """Record that branch ``bid`` was reached by switching at ``sid``
         (each extra route to the same branch increments ``routes``)."""
@@ -527,6 +548,13 @@ class BranchGraph:
                 f"  {a['n_points']} points, {a['n_stable_points']} stable"
                 + (f"  ({a['end_reason']})" if a["end_reason"] else "")
             )
+            for sid, _ in self.g.in_edges(bid):
+                o = self.g.nodes[sid]
+                if o.get("type") == "special" and "stored_run" in o:
+                    # where a curve of folds of cycles started (another run's fold)
+                    lines.append(f"    from {o['label']} ({o['kind']}) of run "
+                                 f"{Path(str(o['stored_run'])).name}: "
+                                 f"{o.get('stored_param', 'p')}={o['p']:.8g}")
             for sid in self.special_points_on(bid):
                 s = self.g.nodes[sid]
                 born = [b for _, b in self.g.out_edges(sid) if b in self._branches]

@@ -23,7 +23,7 @@ def make_point(pb: Problem, s: ContinuationSettings, ctx: EventContext,
     in ``accuracy``) and
     cost since ``t0`` / ``evals0``."""
     x, p = ctx.x, ctx.p
-    pt = Point(u=np.array(pb.state(x), dtype=float), p=p, params=pb.params_at(p),
+    pt = Point(u=np.array(pb.state(x), dtype=float), p=p, params=pb.params_of(x, p),
                kind=pb.kind, extra=dict(pb.extra(x)), tangent=ctx.tangent.copy(),
                step=ds)
     if s.compute_stability:

@@ -14,6 +14,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+import scipy.linalg as sla
 import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.sparse.linalg import LinearOperator, gmres, splu
@@ -197,6 +198,36 @@ def solve_minimally_augmented(
         return y[:m], float("nan"), info
     info["y"] = y.copy()
     return y[:m], float(y[m]), info
+
+
+def bordered_null_vectors(J: Array, b: Array, c: Array) -> tuple[Array, Array, float]:
+    """``(v, w, g)`` of the minimally augmented fold system of a square ``J``:
+
+        [[J, b], [c^T, 0]] [v; g] = [0; 1],    [[J^T, c], [b^T, 0]] [w; g] = [0; 1]
+
+    (one dense LU, two solves; Govaerts 2000, ch. 3). ``g`` vanishes exactly
+    where ``J`` is singular, ``v`` and ``w`` are then its right and left null
+    vectors (``c.v = 1``, ``b.w = 1`` orient them); the bordered matrix is
+    regular near a simple singularity when ``b`` is not in the range of ``J``
+    and ``c`` not orthogonal to its null vector (``b, c`` = the last left and
+    right null vectors). ``g`` is the same number in both systems (Cramer's
+    rule: ``det J / det`` of the bordered matrix)."""
+    m = J.shape[0]
+    A = np.zeros((m + 1, m + 1))
+    A[:m, :m] = J
+    A[:m, m] = b
+    A[m, :m] = c
+    if not np.all(np.isfinite(A)):
+        raise NonFiniteError("the bordered fold matrix is not finite")
+    lu = sla.lu_factor(A, check_finite=False)
+    rhs = np.zeros(m + 1)
+    rhs[m] = 1.0
+    y = sla.lu_solve(lu, rhs, check_finite=False)
+    z = sla.lu_solve(lu, rhs, trans=1, check_finite=False)
+    if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
+        raise NonFiniteError("the bordered fold matrix is singular (borders orthogonal to the "
+                             "null vectors)")
+    return y[:m], z[:m], float(y[m])
 
 
 def check_finite(M: Array, what: str) -> None:

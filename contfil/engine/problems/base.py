@@ -98,7 +98,7 @@ class Problem(ABC):
     unconditionally): ``param``, ``subspace``, ``rhs_evals`` /
     ``flow_evals`` (cost counters), ``fast_iter`` and ``jacobian_effort`` (step
     growth),
-    :meth:`params_at`, :meth:`observables`, :meth:`default_events`,
+    :meth:`params_at`, :meth:`params_of`, :meth:`observables`, :meth:`default_events`,
     :meth:`sparse_jacobian`, :meth:`preconditioner`,
     :meth:`accept`, :meth:`restart_data` / :meth:`restore` (what a resumed
     run needs besides ``(x, p)``, e.g. a phase reference), :meth:`refine` /
@@ -173,6 +173,12 @@ class Problem(ABC):
     def params_at(self, p: float) -> Array:
         """The model's full parameter vector at ``p`` (default: ``[p]``)."""
         return np.array([p])
+
+    def params_of(self, x: Array, p: float) -> Array:
+        """The full parameter vector of the solution ``(x, p)`` (``Point.params``;
+        default: :meth:`params_at`). Problems whose unknowns hold a parameter
+        (a two-parameter curve) override it."""
+        return self.params_at(p)
 
     def observables(self, x: Array, p: float) -> dict[str, Any] | None:
         """Scalar observables stored with each point (``None``: none)."""

@@ -9,6 +9,7 @@ from contfil.models.catalog.brusselator import brusselator, brusselator_1d
 from contfil.models.catalog.chafee_infante import chafee_infante
 from contfil.models.catalog.normal_forms import (
     CatalogEntry,
+    bautin_2d,
     hopf_2d,
     hopf_with_real_pair,
     o2_hopf,
@@ -20,6 +21,7 @@ from contfil.models.catalog.normal_forms import (
 
 __all__ = [
     "CatalogEntry",
+    "bautin_2d",
     "bratu",
     "bratu_fold_exact",
     "bratu_solution",

@@ -135,6 +135,33 @@ def hopf_2d(omega: float = 2.0, p0: float = -1.0) -> CatalogEntry:
     return CatalogEntry(m, "mu", np.zeros(2), p0, {"hopf": 0.0, "omega": omega})
 
 
+def bautin_2d(p0: float = -0.5, beta2: float = 1.0, omega: float = 1.0) -> CatalogEntry:
+    """Bautin normal form ``z' = (mu + i omega) z + beta2 |z|^2 z - |z|^4 z``:
+    Hopf at ``mu = 0`` (subcritical for ``beta2 > 0``), cycles ``r^2 = rho``
+    with ``mu + beta2 rho - rho^2 = 0`` (period ``2 pi / omega``), folds of
+    cycles on the curve ``mu = -beta2^2 / 4`` at ``rho = beta2 / 2`` (two
+    parameters ``mu``, ``beta2``: the textbook LPC curve)."""
+
+    def f(u: Array, p: Array) -> Array:
+        x, y = u
+        r2 = x * x + y * y
+        g = p[0] + p[1] * r2 - r2 * r2
+        return np.array([g * x - p[2] * y, p[2] * x + g * y])
+
+    def jac(u: Array, p: Array) -> Array:
+        x, y = u
+        r2 = x * x + y * y
+        g = p[0] + p[1] * r2 - r2 * r2
+        gr = p[1] - 2 * r2
+        return np.array([[g + 2 * x * x * gr, 2 * x * y * gr - p[2]],
+                         [2 * x * y * gr + p[2], g + 2 * y * y * gr]])
+
+    m = FunctionModel(f, 2, {"mu": p0, "beta2": beta2, "omega": omega}, name="bautin_2d",
+                      jacobian=jac)
+    return CatalogEntry(m, "mu", np.zeros(2), p0,
+                        {"hopf": 0.0, "cycle_fold": -beta2**2 / 4, "omega": omega})
+
+
 def o2_hopf(omega: float = 1.5, a: float = -1.0, b: float = -2.0, p0: float = -1.0) -> CatalogEntry:
     """O(2)-equivariant Hopf normal form in C^2 = R^4::
 
