@@ -14,8 +14,9 @@ and, per model,
   ``docs/figures/high_beating_multipliers.png``;
 - prints a markdown table of the branches (kind, parameter span, points,
   unstable-multiplier counts along it, end reason) and of every special point
-  with its error estimate (the bracket the localisation ended on, its
-  tolerance, the test value reached);
+  with its error estimates (``p_error``, the event located again at twice
+  the time steps, fine - coarse, or why that failed; the bracket the
+  localisation ended on, its tolerance, the test value reached);
 
 and ends with one JSON line (per model: branches, special points, wall time
 of the run from its task logs).
@@ -166,8 +167,9 @@ def special_rows(g: BranchGraph) -> list[dict[str, Any]]:
         d = sp.data
         row: dict[str, Any] = {"label": g.label(sid), "kind": sp.kind, "p": float(sp.point.p),
                                "branches": g.branches_at(sid), "event": d.get("event")}
-        for key in ("bracket", "tolerance", "test_value", "localisation", "p_end", "dp"):
-            if key in d and np.isscalar(d[key]):
+        for key in ("bracket", "tolerance", "test_value", "localisation", "p_end", "dp",
+                    "p_error", "p_error_failed"):
+            if key in d and d[key] is not None and np.isscalar(d[key]):
                 row[key] = d[key] if isinstance(d[key], str) else float(d[key])
         for key in ("multiplier", "eigenvalue"):
             if key in d:
@@ -177,6 +179,17 @@ def special_rows(g: BranchGraph) -> list[dict[str, Any]]:
             row["switch_error"] = str(d["switch_error"])[:160]
         rows.append(row)
     return sorted(rows, key=lambda r: r["p"])
+
+
+def _p_error(row: dict[str, Any]) -> str:
+    """The location's error estimate (fine - coarse, signed), why it failed,
+    or "—" for a point that has none (a run before the estimates, or a
+    problem that cannot refine)."""
+    if "p_error" in row:
+        return f"{row['p_error']:+.2g}"
+    if "p_error_failed" in row:
+        return f"failed: {row['p_error_failed']}"
+    return "—"
 
 
 def run_wall_time(run: Path) -> float | None:
@@ -215,10 +228,11 @@ def report(model: str, out: Path) -> dict[str, Any] | None:
         res["branches"].append({"id": bid, "kind": br.kind, "p_first": ps[0], "p_last": ps[-1],
                                 "points": len(ps), "stability": runs, "end": end})
     rows = special_rows(g)
-    print(f"\n| label | kind | event | {param} | bracket | tol | test value | branches |\n"
-          "|---|---|---|---|---|---|---|---|")
+    print(f"\n| label | kind | event | {param} | p_error | bracket | tol | test value "
+          "| branches |\n|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         print(f"| {r['label']} | {r['kind']} | {r.get('event') or ''} | {r['p']:.8g} | "
+              f"{_p_error(r)} | "
               f"{r.get('bracket', float('nan')):.2g} | {r.get('tolerance', float('nan')):.1g} | "
               f"{r.get('test_value', float('nan')):.2g} | {', '.join(r['branches'])} |")
     res["special_points"] = rows
