@@ -441,23 +441,24 @@ def main() -> None:
     ap.add_argument("--dp", type=float, default=0.05, help="distance from the crossing")
     ap.add_argument("--eps", type=float, default=1e-6, help="relative push")
     args = ap.parse_args()
-    if args.fold is not None:
+    # one special point of any stored run: a fold (the run's flow) or a torus pair
+    modes = {
+        "fold": ("| fold | side | parameter | distance to | first | max | last | "
+                 "return residual (first -> last period) | orbit size | periods | |\n"
+                 "|---|---|---|---|---|---|---|---|---|---|---|", fold_relax, "fold_relax"),
+        "pair": ("| crossing | side | parameter | unstable | computed |μ| of the pair | "
+                 "measured factor per period | periods | push along the pair |\n"
+                 "|---|---|---|---|---|---|---|---|", pair_growth, "pair_growth"),
+    }
+    for mode, (header, check, key) in modes.items():
+        label = getattr(args, mode)
+        if label is None:
+            continue
         if args.spec is None:
-            ap.error("--fold needs --spec")
-        print("| fold | side | parameter | distance to | first | max | last | "
-              "return residual (first -> last period) | orbit size | periods | |\n"
-              "|---|---|---|---|---|---|---|---|---|---|---|", flush=True)
-        rows = fold_relax(args.spec, args.run, args.fold, args.dp, args.periods, args.eps)
-        print(json.dumps({"fold_relax": rows}))
-        return
-    if args.pair is not None:
-        if args.spec is None:
-            ap.error("--pair needs --spec")
-        print("| crossing | side | parameter | unstable | computed |μ| of the pair | "
-              "measured factor per period | periods | push along the pair |\n"
-              "|---|---|---|---|---|---|---|---|", flush=True)
-        rows = pair_growth(args.spec, args.run, args.pair, args.dp, args.periods, args.eps)
-        print(json.dumps({"pair_growth": rows}))
+            ap.error(f"--{mode} needs --spec")
+        print(header, flush=True)
+        rows = check(args.spec, args.run, label, args.dp, args.periods, args.eps)
+        print(json.dumps({key: rows}))
         return
     print("| model | bifurcation | side | parameter | unstable (stored) | stored max |μ| | "
           "measured factor per period | periods | out-of-plane part |\n"

@@ -5,15 +5,18 @@ and LPC2, to buckled-beating); tip FF's beating branch passes the same
 stretch unfolded. The two-actuation scene ``follower_force+squirmer``
 (docs/decisions.md 46) joins the two models in the (f, b1) plane: tip SF is
 its f = 0 axis, tip FF its b1 = 0 axis. Each stored run read here
-(``branches/data/tip_mix_planar/b<b1>/``, specs ``branches/tip_mix_planar/``)
+(``branches/data/tip_mix_planar_f*/``, specs ``branches/tip_mix_planar_f*.toml``)
 starts on stored tip SF planar beating at one b1 and continues it in f at
-that fixed b1 (planar Radau, planar stability).
+that fixed b1 (planar Radau, planar stability); the curves of folds
+(``branches/data/tip_mix_planar_lpc{1,2}_curve/``, decisions 48) continue
+tip SF's LPC1 and LPC2 themselves in f with b1 as an unknown.
 
 Reads the runs (graph or, for an interrupted run, its task logs) and
 
-- prints, per run, the special points along the branch in the order met
-  (kind, f, p_error), the number of folds of cycles and the span of f they
-  cover;
+- prints, per scan, the special points along the branch in the order met
+  (kind, f, p_error), and a markdown table: per scan its folds, and where
+  each curve of folds crosses that b1 (linear interpolation between the
+  curve's points) with the distance to the nearest fold of the scan;
 - draws ``tip_mix_cusp.png`` (``--out``): the folds, tori and branch points
   in the (f, b1) plane with tip SF's own LPC1/LPC2/NS1 on the f = 0 axis
   (``tip_sf_high_planar``) and tip FF's NS1 and chaotic window on the
@@ -70,7 +73,17 @@ def read_run(run: Path) -> dict[str, Any]:
         pts, sps, end = recs.points, recs.specials, recs.end or "interrupted"
     sps = sorted(sps, key=lambda sp: (int(sp.index), float(sp.point.p)))
     b1 = float(np.asarray(pts[0].params, dtype=float)[1])
-    return {"run": run, "b1": b1, "points": pts, "specials": sps, "end": end}
+    kind = pts[0].kind if getattr(pts[0], "kind", None) else ""
+    return {"run": run, "b1": b1, "points": pts, "specials": sps, "end": end, "kind": kind}
+
+
+def crossings(curve: np.ndarray, b1: float) -> list[float]:
+    """f where the curve of folds ``(f, b1)`` rows crosses ``b1`` (linear)."""
+    out = []
+    for (f0, c0), (f1, c1) in zip(curve[:-1], curve[1:], strict=True):
+        if (c0 - b1) * (c1 - b1) <= 0 and c0 != c1:
+            out.append(float(f0 + (b1 - c0) / (c1 - c0) * (f1 - f0)))
+    return out
 
 
 def references() -> dict[str, Any]:
@@ -96,8 +109,12 @@ def main() -> None:
     ap.add_argument("--runs", nargs="*", type=Path, default=None)
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "figures")
     args = ap.parse_args()
-    runs = args.runs or sorted(p for p in (DATA / "tip_mix_planar").glob("b*") if p.is_dir())
-    recs = sorted((read_run(r) for r in runs), key=lambda d: -d["b1"])
+    runs = args.runs or sorted(p for p in DATA.glob("tip_mix_planar_*") if p.is_dir())
+    recs = [read_run(r) for r in runs]
+    curves = {d["run"].name: np.array([[float(v) for v in p.params] for p in d["points"]])
+              for d in recs if d.get("kind") == "cycle_fold_curve"}
+    recs = sorted((d for d in recs if d.get("kind") != "cycle_fold_curve"),
+                  key=lambda d: -d["b1"])
     ref = references()
     summary = []
     for d in recs:
@@ -111,10 +128,40 @@ def main() -> None:
             err = sp.data.get("p_error")
             print(f"    {sp.kind:20s} f = {float(sp.point.p):10.4f}  p_error "
                   f"{'-' if err is None else f'{err:+.1e}'}  (point {sp.index})")
+        fmax = max(p.p for p in d["points"])
+        cross = {name: [c for c in crossings(cv, d["b1"]) if c <= fmax]
+                 for name, cv in curves.items()}
+        near = {name: [min((abs(c - f) for f in fs), default=None) for c in cs]
+                for name, cs in cross.items()}
         summary.append({"b1": round(d["b1"], 3), "points": len(d["points"]), "end": d["end"],
+                        "f_max": round(fmax, 3),
                         "folds": [round(f, 5) for f in fs],
+                        "p_errors": [sp.data.get("p_error") for sp in folds],
                         "tori": [round(float(sp.point.p), 5) for sp in d["specials"]
-                                 if sp.kind == "torus"]})
+                                 if sp.kind == "torus"],
+                        "curve_crossings": {k: [round(c, 3) for c in v] for k, v in cross.items()},
+                        "curve_to_scan_fold": near})
+    names = sorted(curves)
+    print("\n| scan b1 | f window | folds of the scan (f, p_error) | "
+          + " | ".join(f"{n.replace('tip_mix_planar_', '')} crosses at f (distance to a scan fold)"
+                       for n in names) + " | tori |")
+    print("|---|---|---|" + "---|" * len(names) + "---|")
+    for row in summary:
+        folds = ", ".join(f"{f:.4f} ({e:+.0e})" if e is not None else f"{f:.4f}"
+                          for f, e in zip(row["folds"], row["p_errors"], strict=True)) or "none"
+        cells = []
+        for n in names:
+            cs, ds = row["curve_crossings"][n], row["curve_to_scan_fold"][n]
+            cells.append(", ".join(f"{c:.2f} ({'no fold' if dd is None else f'{dd:.3f}'})"
+                                   for c, dd in zip(cs, ds, strict=True)) or "-")
+        print(f"| {row['b1']:.2f} | 0-{row['f_max']:.0f} | {folds} | " + " | ".join(cells)
+              + f" | {', '.join(f'{t:.2f}' for t in row['tori']) or '-'} |")
+    for n, cv in curves.items():
+        k = int(np.argmin(cv[:, 1]))
+        print(f"{n}: {len(cv)} points, from ({cv[0, 0]:.4f}, {cv[0, 1]:.4f}) to "
+              f"({cv[-1, 0]:.4f}, {cv[-1, 1]:.4f}); lowest b1 {cv[k, 1]:.4f} "
+              f"at f = {cv[k, 0]:.4f}; "
+              f"largest f {cv[:, 0].max():.4f}")
 
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 5))
     seen: set[str] = set()
@@ -142,6 +189,9 @@ def main() -> None:
         a, b = ref["ff_window"]
         ax.plot([a, b], [0.0, 0.0], color="k", lw=4, solid_capstyle="butt",
                 label="tip FF chaotic window")
+    for i, (n, cv) in enumerate(sorted(curves.items())):
+        ax.plot(cv[:, 0], cv[:, 1], "-", color=("C3", "C1")[i % 2], lw=1.2,
+                label=f"curve of folds from tip SF {n.split('_')[-2].upper()}")
     ax.set_xlabel("f (tip follower force)")
     ax.set_ylabel("b1 (tip surface flow)")
     ax.set_title("folds and tori of planar beating, continued in f at fixed b1")
@@ -162,7 +212,12 @@ def main() -> None:
     path = args.out / "tip_mix_cusp.png"
     fig.savefig(path, dpi=120)
     print(f"wrote {path}")
-    print(json.dumps({"tip_mix_cusp": summary, "tip_sf_f0": ref["sf"], "tip_ff_b1_0": ref["ff"],
+    print(json.dumps({"tip_mix_cusp": summary,
+                      "curves": {n: {"points": len(cv), "start": cv[0].round(4).tolist(),
+                                     "end": cv[-1].round(4).tolist(),
+                                     "lowest_b1": cv[np.argmin(cv[:, 1])].round(4).tolist()}
+                                 for n, cv in curves.items()},
+                      "tip_sf_f0": ref["sf"], "tip_ff_b1_0": ref["ff"],
                       "tip_ff_chaotic_window": ref["ff_window"]}))
 
 

@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_tangent_textbook import RadauTangentModel as _TextbookRadauTangentModel
 
 from contfil.engine.branch import CUSP_OF_CYCLES, CYCLE_FOLD, ENDPOINT, SECOND_RANGE_END
 from contfil.engine.continuation.driver import Continuation, ContinuationSettings
-from contfil.engine.flows.radau import RadauFlow
 from contfil.engine.problems.cycle_fold_curve import CycleFoldCurveProblem
 from contfil.engine.problems.shooting import PeriodicOrbitProblem
 from contfil.errors import SpecError
-from contfil.protocol import FlowTangent, FunctionModel
+from contfil.protocol import FunctionModel
 
 STEPS = 50
 TWO_PI = 2 * np.pi
@@ -59,24 +59,12 @@ def _radial_model(hfun, name, params, cls=FunctionModel, **kw):
     return m
 
 
-class RadauTangentModel(FunctionModel):
-    """A model with its own fixed-step Radau flow and the exact
-    ``flow_tangent`` sweep of it (the filament's exact-tangent path)."""
+class RadauTangentModel(_TextbookRadauTangentModel):
+    """The textbook exact-tangent model (``test_tangent_textbook``) with the
+    model's own Jacobian in its Radau stepper and this file's step count."""
 
     def __init__(self, *args, steps: int = STEPS, **kw) -> None:
-        super().__init__(*args, **kw)
-        self._radau = RadauFlow(self.rhs, self.jacobian, steps=steps)
-
-    def flow(self, u, p, T):
-        return self._radau.flow(u, p, T)
-
-    def flow_tangent(self, u, p, T, V=None, param_index=None, samples=0):
-        r = self._radau
-        r.param_index = param_index
-        M, dT = r.monodromy(u, p, T)
-        phi = r.flow_and_tangents(u, p, T)
-        dp = r.dflow_dp(u, p, T) if param_index is not None else None
-        return FlowTangent(phi=phi, jvp=M if V is None else M @ V, dT=dT, dp=dp)
+        super().__init__(*args, steps=steps, analytic_jacobian=True, **kw)
 
 
 def _fold_by_one_parameter_run(model, param, x0, p0, p_min):

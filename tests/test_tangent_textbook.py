@@ -51,12 +51,15 @@ MU_STAR = GAMMA / C
 class RadauTangentModel(FunctionModel):
     """A :class:`FunctionModel` with its own fixed-step Radau flow and the
     exact ``flow_tangent`` of that discrete flow (``exact_tangents`` can turn
-    the hook off: the engine then takes finite differences of the flow)."""
+    the hook off: the engine then takes finite differences of the flow;
+    ``analytic_jacobian`` gives the Radau stepper the model's own Jacobian)."""
 
-    def __init__(self, *args, steps: int = 40, tangents: bool = True, **kw) -> None:
+    def __init__(self, *args, steps: int = 40, tangents: bool = True,
+                 analytic_jacobian: bool = False, **kw) -> None:
         super().__init__(*args, **kw)
         self.exact_tangents = tangents
-        self._radau = RadauFlow(self.rhs, None, steps=steps)
+        self._radau = RadauFlow(self.rhs, self.jacobian if analytic_jacobian else None,
+                                steps=steps)
 
     def flow(self, u, p, T):
         return self._radau.flow(u, p, T)
