@@ -276,17 +276,23 @@ def _newton(pb: Any, x: np.ndarray, p: float, tol: float = 1e-10) -> np.ndarray:
     raise RuntimeError(f"no orbit at p = {p}: residual {np.max(np.abs(r)):.1e}")
 
 
-def pair_growth(spec_path: Path, run: Path | None, label: str, dp: float, periods: int,
-                eps: float) -> list[dict[str, Any]]:
-    """Growth per period of a push along the crossing pair's Floquet vector,
-    just below and just above the special point ``label`` (see the module
-    docstring, "A torus crossing")."""
+def _special_of_run(spec_path: Path, run: Path | None, label: str) -> tuple[Any, ...]:
+    """The spec's model, the run (default ``data/<spec name>`` beside the
+    spec), its graph, and the special point ``label``'s id and record."""
     spec = load_spec(spec_path)
     model = build_model(spec).model
     run = run or Path(spec_path).parent / "data" / Path(spec_path).stem
     g = load_run_graph(run)
     sid = next(s for s in g.special_points if g.label(s) == label)
-    sp = g.special_points[sid]
+    return model, run, g, sid, g.special_points[sid]
+
+
+def pair_growth(spec_path: Path, run: Path | None, label: str, dp: float, periods: int,
+                eps: float) -> list[dict[str, Any]]:
+    """Growth per period of a push along the crossing pair's Floquet vector,
+    just below and just above the special point ``label`` (see the module
+    docstring, "A torus crossing")."""
+    model, run, g, sid, sp = _special_of_run(spec_path, run, label)
     bid = g.branches_at(sid)[0]
     pstar = float(sp.point.p)
     mu_star = complex(sp.data["multiplier"])
@@ -343,12 +349,7 @@ def fold_relax(spec_path: Path, run: Path | None, label: str, dp: float, periods
     at ``p* -+ dp`` on the side where the branch's stable orbits lie (it must
     relax onto the stable orbit there, re-solved at that parameter) and on the
     other side (no orbit nearby: it must leave)."""
-    spec = load_spec(spec_path)
-    model = build_model(spec).model
-    run = run or Path(spec_path).parent / "data" / Path(spec_path).stem
-    g = load_run_graph(run)
-    sid = next(s for s in g.special_points if g.label(s) == label)
-    sp = g.special_points[sid]
+    model, run, g, sid, sp = _special_of_run(spec_path, run, label)
     if sp.kind != "cycle_fold":
         raise SystemExit(f"--fold {label}: a {sp.kind}, not a fold of cycles")
     bid = g.branches_at(sid)[0]
