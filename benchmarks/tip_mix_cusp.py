@@ -73,8 +73,8 @@ def read_run(run: Path) -> dict[str, Any]:
         pts, sps, end = recs.points, recs.specials, recs.end or "interrupted"
     sps = sorted(sps, key=lambda sp: (int(sp.index), float(sp.point.p)))
     b1 = float(np.asarray(pts[0].params, dtype=float)[1])
-    kind = pts[0].kind if getattr(pts[0], "kind", None) else ""
-    return {"run": run, "b1": b1, "points": pts, "specials": sps, "end": end, "kind": kind}
+    return {"run": run, "b1": b1, "points": pts, "specials": sps, "end": end,
+            "kind": pts[0].kind}
 
 
 def crossings(curve: np.ndarray, b1: float) -> list[float]:

@@ -54,7 +54,7 @@ def test_block_solve_inverts_the_dense_stage_jacobian(dimension: str, block: str
     zm, rm = st._zmap, st._rmap
     if block == "normal":  # the out-of-plane tangent block along a planar state (3D physics)
         m3 = _model("3d", "squirmer", 100.0)
-        par, flags = m3.physics.params(radau._strength(st.par)), m3.physics.flags
+        par, flags = m3.physics.params(m3.physics.strengths_of(st.par)), m3.physics.flags
         zm, rm = normal_maps(N)
     args = (Zf, st._q, st.dt, st.W, par, par, flags, zm, rm, st._scales, False)
     J = kr.stage_jacobian(*args)[0]

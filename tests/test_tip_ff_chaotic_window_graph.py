@@ -13,6 +13,7 @@ record's parameter.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 from contfil.store.run_store import load_run_graph
@@ -56,7 +57,7 @@ def test_each_label_follows_from_its_evidence() -> None:
             # zero within three errors, and either all lines or a bound below the
             # spectrum's resolution rate (decisions 43)
             assert abs(lam) <= 3 * err, s["id"]
-            resolved = lam + 3 * err < 2 * 3.141592653589793 * ev["frequency_resolution"]
+            resolved = lam + 3 * err < 2 * math.pi * ev["frequency_resolution"]
             assert ev["discrete_fraction"] >= 0.98 or resolved, s["id"]
 
 

@@ -215,20 +215,18 @@ class FilamentPhysics:
         tangents' parameter column). ``index`` = the continued parameter's
         position in :attr:`param_names` (None: 0)."""
         vals = list(self._values(strength))
+        d = np.zeros_like(self._base)
+        if not vals:
+            return d  # a passive scene: nothing depends on a strength
         i = 0 if index is None else int(index)
         if not 0 <= i < len(vals):
-            if not vals:
-                return np.zeros_like(self._base)
             raise IndexError(f"FilamentPhysics.dparams: parameter index {i} out of range for "
                              f"{list(self.param_names)}")
-        if len(vals) == 1:
-            # a single actuation: exactly the previous form
-            return self.params(vals[0] + 1.0) - self.params(vals[0])
         up = list(vals)
         up[i] += 1.0
-        # only slot i moves (the NaN P_SCALE of a mixed par is no derivative)
+        # only slot i moves (every other entry of the difference is an exact
+        # zero; the NaN P_SCALE of a mixed par would be no derivative)
         slot = self.slots[i]
-        d = np.zeros_like(self._base)
         d[slot] = self.params(up)[slot] - self.params(vals)[slot]
         return d
 

@@ -63,12 +63,7 @@ from ..kernels.geometry import frames_from_state, positions, state_from_frames, 
 from ..physics import FilamentPhysics, embed_planar, project_planar
 from . import STEPS_PER_PERIOD, LastTrajectory, default_steps, state_of_frames, step_count
 from .bdf2_stepper import _maps, _scene_of, _strength_from_params
-from .bdf2_tangent import (  # noqa: F401 (_strength: kept for callers)
-    _rotations_from_state,
-    _state_from_rotations,
-    _strength,
-    normal_maps,
-)
+from .bdf2_tangent import _rotations_from_state, _state_from_rotations, normal_maps
 
 Array = NDArray[np.float64]
 
