@@ -362,3 +362,79 @@ def test_steppers_take_both_strengths_and_refuse_one() -> None:
     assert rs.par[P_F] == 20.0 and rs.par[P_B1] == 100.0
     with pytest.raises(ValueError, match="2 actuation parameters"):
         m.physics.params(1.0)
+
+
+# -- the first bifurcation's helpers on a two-parameter model ---------------------
+def test_double_hopf_and_whirling_of_the_mixed_model_are_the_single_models() -> None:
+    """``double_hopf``/``solve_whirling`` vary the named parameter and keep the
+    other at the scene's value: on the b1 = 0 axis they are tip FF's, on the
+    f = 0 axis tip SF's (the same vector field bit for bit, so the same root)."""
+    from contfil.models.filament.cycles import double_hopf, solve_whirling
+
+    mix = FilamentModel(_scene(MIX, "3d", "tip", N=10, f=0.0, b1=0.0))
+    ff = FilamentModel(_scene("follower_force", "3d", "tip", N=10, f=0.0))
+    sf = FilamentModel(_scene("squirmer", "3d", "tip", N=10, b1=0.0))
+    for name, single, bracket in (("f", ff, (20.0, 60.0)), ("b1", sf, (100.0, 200.0))):
+        dm = double_hopf(mix, bracket, param=name)
+        ds = double_hopf(single, bracket)
+        assert dm["param"] == name and ds["param"] == single.param_names[0]
+        assert dm["p"] == pytest.approx(ds["p"], rel=1e-12)
+        assert dm["omega"] == pytest.approx(ds["omega"], rel=1e-12)
+        assert dm["re_residual"] < 1e-8
+        other = 1 - mix.param_names.index(name)
+        assert dm["params"][mix.param_names.index(name)] == dm["p"]
+        assert dm["params"][other] == 0.0
+    # the rotating wave next to tip FF's double Hopf point, solved in the mixed model
+    dm, ds = double_hopf(mix, (20.0, 60.0), param="f"), double_hopf(ff, (20.0, 60.0))
+    _, xm, pm, _ = solve_whirling(mix, dm, 0.02)
+    _, xs, ps, _ = solve_whirling(ff, ds, 0.02)
+    assert pm == pytest.approx(ps, rel=1e-10)
+    assert xm[-1] == pytest.approx(xs[-1], rel=1e-9)  # the wave speed
+    np.testing.assert_allclose(xm[:-1], xs[:-1], atol=1e-9)
+
+
+def test_double_hopf_refuses_an_unknown_parameter() -> None:
+    from contfil.errors import ContfilError
+    from contfil.models.filament.cycles import double_hopf
+
+    mix = FilamentModel(_scene(MIX, "3d", "tip", N=6, f=0.0, b1=0.0))
+    with pytest.raises(ContfilError, match="no parameter 'b2'"):
+        double_hopf(mix, (20.0, 60.0), param="b2")
+
+
+def _sim_spec(actuation: str, cont: str = "") -> str:
+    return ('[scene]\n[scene.geometry]\nN = 8\ndimension = "planar"\n'
+            '[scene.elasticity]\nKB = 1.0\n[scene.hydrodynamics]\ntype = "rpy"\n'
+            f'[scene.actuation]\n{actuation}[scene.boundary]\nbase = "clamped"\n'
+            f'[continuation]\nrange = [0.0, 200.0]\n{cont}'
+            '[simulate]\nt_end = 0.04\ndt = 2e-3\nframes = 3\nstrength = 150.0\n'
+            'perturbation = 0.05\n')
+
+
+def test_simulate_strength_of_a_mixed_scene_names_its_parameter(tmp_path: Path,
+                                                                capsys) -> None:
+    """``[simulate] strength`` on a two-actuation scene sets the parameter named
+    in ``[continuation]``, and without one it is refused in one line (it used to
+    set f silently)."""
+    import json
+
+    from contfil.app.cli import main
+
+    mixed = f'type = "{MIX}"\nprofile = "tip"\nf = 0.0\nb1 = 0.0\n'
+    bad = tmp_path / "bad.toml"
+    bad.write_text(_sim_spec(mixed))
+    assert main(["simulate", str(bad), "--out", str(tmp_path / "bad")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "simulate.strength" in err[0] and "['f', 'b1']" in err[0]
+    tips = {}
+    for name, act, cont in (("mix", mixed, 'parameter = "b1"\n'),
+                            ("sf", 'type = "squirmer"\nprofile = "tip"\nb1 = 0.0\n', "")):
+        spec = tmp_path / f"{name}.toml"
+        spec.write_text(_sim_spec(act, cont))
+        assert main(["simulate", str(spec), "--out", str(tmp_path / name)]) == 0
+        tips[name] = np.load(tmp_path / name / "trajectory.npz")["tip"]
+        s = json.loads((tmp_path / name / "summary.json").read_text())
+        assert s["max_constraint_residual"] < 1e-12
+    # b1 = 150 set in the mixed scene is tip SF at b1 = 150, step for step
+    np.testing.assert_array_equal(tips["mix"], tips["sf"])
+    assert np.ptp(tips["sf"][:, 0]) > 0  # it moved

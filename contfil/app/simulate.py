@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from contfil.app.spec import Spec
-from contfil.errors import ContfilError
+from contfil.errors import ContfilError, SpecError
 from contfil.plot.diagrams import save_figure
 from contfil.store.atomic import atomic_write, atomic_write_json
 
@@ -59,8 +59,17 @@ def simulate(spec: Spec, out: str | Path) -> SimulationResult:
     if sim["strength"] is not None:
         if params.size == 0:
             raise ContfilError("simulate.strength: the model has no parameter to set")
-        ip = 0 if info.param is None else list(model.param_names).index(info.param)
-        params[ip] = sim["strength"]
+        names = list(model.param_names)
+        name = (spec.continuation or {}).get("parameter") or info.param
+        if name is None and len(names) > 1:
+            # a two-actuation scene: which strength is meant must be said
+            raise SpecError(
+                f"simulate.strength: model {model.name!r} has parameters {names}; name the "
+                "one it sets in [continuation] parameter, or set both in [scene.actuation]")
+        if name is not None and name not in names:
+            raise SpecError(f"simulate.strength: model {model.name!r} has no parameter "
+                            f"{name!r}; known: {names}")
+        params[0 if name is None else names.index(name)] = sim["strength"]
     u0 = _initial_state(model, params, sim["perturbation"], sim["seed"])
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

@@ -135,32 +135,51 @@ def leading_pair(J: Array) -> tuple[complex, NDArray[np.complex128]]:
     return complex(vals[k]), v / np.linalg.norm(v)
 
 
+def params_with(model: Any, name: str, value: float) -> Array:
+    """The model's default parameter vector with ``name`` set to ``value``.
+
+    A two-actuation filament has two parameters (``f``, ``b1``): the one not
+    varied keeps the scene's value.
+    """
+    names = list(model.param_names)
+    if name not in names:
+        raise ContfilError(f"model {model.name!r} has no parameter {name!r} (it has {names})")
+    q = np.array(model.default_params(), dtype=float)
+    q[names.index(name)] = value
+    return q
+
+
 def double_hopf(model: FilamentModel, bracket: tuple[float, float],
-                xtol: float = 1e-10) -> dict[str, Any]:
+                xtol: float = 1e-10, param: str | None = None) -> dict[str, Any]:
     """O(2) double Hopf point of the upright state in a bracket of the parameter.
 
-    Returns ``p`` (critical actuation), ``omega`` (``Im lambda``), the planar
+    ``param`` names the varied parameter (default: the model's first; the
+    others keep the scene's values). Returns ``param``, ``params`` (the full
+    parameter vector at the point), ``p`` (critical actuation), ``omega``
+    (``Im lambda``), the planar
     critical eigenvector ``v_planar`` (complex, unit, phase-normalised so that
     ``Re v . Im v = 0`` and ``|Re v| >= |Im v|``), its 3D embedding ``v_x`` and
     ``v_y = R_z(pi/2) v_x``, and the residual ``|Re lambda|`` at the root.
     """
     mp = planar(model) if not model.planar else model
     u0 = np.zeros(mp.dim)
+    name = model.param_names[0] if param is None else param
 
     def re_lead(s: float) -> float:
-        return leading_pair(mp.jacobian(u0, np.array([s])))[0].real
+        return leading_pair(mp.jacobian(u0, params_with(mp, name, s)))[0].real
 
     a, b = bracket
     if re_lead(a) * re_lead(b) > 0:
         raise ContfilError(f"double_hopf: the leading real part does not change sign in {bracket}")
     s = brentq(re_lead, a, b, xtol=xtol)
-    lam, v = leading_pair(mp.jacobian(u0, np.array([s])))
+    lam, v = leading_pair(mp.jacobian(u0, params_with(mp, name, s)))
     v = normalise_phase(v)
     emb = model.symmetries.invariant_subspaces["planar_xz"].embed
     vx = np.asarray(emb(v.real), dtype=float) + 1j * np.asarray(emb(v.imag), dtype=float)
     rot = model.symmetries.continuous[0]
     vy = rot.act(np.pi / 2, vx.real) + 1j * rot.act(np.pi / 2, vx.imag)
-    return {"p": float(s), "omega": float(abs(lam.imag)), "eigenvalue": lam,
+    return {"param": name, "params": params_with(model, name, s),
+            "p": float(s), "omega": float(abs(lam.imag)), "eigenvalue": lam,
             "v_planar": v, "v_x": vx, "v_y": vy, "re_residual": abs(lam.real)}
 
 
@@ -229,7 +248,8 @@ def solve_whirling(
     from contfil.engine.problems.rotating_wave import RotatingWaveProblem
 
     ws = whirling_seed(model, dh)
-    pb = RotatingWaveProblem(model, model.param_names[0], np.array([dh["p"]]))
+    name = dh.get("param", model.param_names[0])
+    pb = RotatingWaveProblem(model, name, params_with(model, name, dh["p"]))
     u0 = eps * ws["d"]
     pb.set_reference(u0)
     x, p = np.concatenate([u0, [ws["omega_rw"]]]), float(dh["p"])
@@ -282,7 +302,8 @@ def solve_beating(flow_model: FixedStepFlow, dh: dict[str, Any], eps: float,
     from contfil.engine.switching.cycles import solve_with_amplitude
 
     bs = beating_seed(dh)
-    pb = PeriodicOrbitProblem(flow_model, flow_model.param_names[0], np.array([dh["p"]]),
+    name = dh.get("param", flow_model.param_names[0])
+    pb = PeriodicOrbitProblem(flow_model, name, params_with(flow_model, name, dh["p"]),
                               subspace="planar_xz")
     u0 = eps * bs["d"]
     pb.set_reference(u0, dh["p"])
