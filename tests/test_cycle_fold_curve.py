@@ -262,6 +262,71 @@ def test_cusp_curve_ends_on_second_range(cusp):
     assert br.meta["stop_reason"] == "branch_end"
 
 
+# ----------------------------------------------------- a closed fold curve
+R_CIRCLE = 0.5
+
+
+def _circle_h(rho, b1, b2):
+    return R_CIRCLE**2 - b1 * b1 - b2 * b2 - (rho - 1.0) ** 2, -2.0 * (rho - 1.0)
+
+
+def _fold_increasing(model, param, x0, p0, p_max):
+    pb = PeriodicOrbitProblem(model, param, steps=STEPS)
+    s = ContinuationSettings(ds=0.01, ds_max=0.02, max_points=12, p_max=p_max)
+    br = Continuation(pb, x0, p0, s, direction=1).run()
+    folds = [sp for sp in br.special_points if sp.kind == CYCLE_FOLD]
+    assert len(folds) >= 1
+    return folds[0]
+
+
+def test_fold_curve_turns_in_both_parameters_at_the_exact_extrema():
+    """Along the circle of folds each parameter's extremum is reported as a
+    turn (TP) with the exact value ±R (to the discrete flow's O(h^5) shift of
+    the folds, 4e-9) and the other parameter ≈ 0; the points stay on the
+    circle; nothing else is reported."""
+    from contfil.engine.branch import CURVE_TURN
+
+    ang = np.pi / 18  # start 10 degrees before b1's maximum
+    b1s, b2 = R_CIRCLE * np.cos(ang), R_CIRCLE * np.sin(ang)
+    b10 = b1s - 0.01
+    m = _radial_model(_circle_h, "fold_circle", {"b1": b10, "b2": b2})
+    g = R_CIRCLE**2 - b10**2 - b2**2
+    fold = _fold_increasing(m, "b1", np.array([np.sqrt(1 + np.sqrt(g)), 0.0, TWO_PI]), b10,
+                            1.0)
+    assert fold.point.p == pytest.approx(b1s, abs=1e-7)
+    cp, y0, p1 = _curve_problem(m, fold, "b1", "b2")
+    # b1 increasing from 10 degrees: clockwise, past b1's max (0 degrees),
+    # b2's min (-90) and b1's min (180); the tangent turns ~7 degrees a step
+    s = ContinuationSettings(ds=0.2, ds_max=0.5, max_angle=0.35, max_points=30, p_min=-1.0,
+                             p_max=1.0)
+    br = Continuation(cp, y0, p1, s, direction=1).run()
+    for pt in br.points:
+        assert pt.p**2 + pt.extra["b2"] ** 2 == pytest.approx(R_CIRCLE**2, abs=1e-7)
+        assert pt.u @ pt.u == pytest.approx(1.0, abs=1e-7)
+    turns = [sp for sp in br.special_points if sp.kind == CURVE_TURN]
+    got = [(t.data["parameter"], t.data["extremum"]) for t in turns]
+    print("turns:", [(n, e, round(t.data["value"], 10)) for (n, e), t in zip(got, turns,
+                                                                                strict=True)])
+    assert got == [("b1", "max"), ("b2", "min"), ("b1", "min")]
+    for t in turns:
+        name, other = t.data["parameter"], t.data["other_parameter"]
+        sign = 1.0 if t.data["extremum"] == "max" else -1.0
+        assert t.data["value"] == pytest.approx(sign * R_CIRCLE, abs=1e-7)
+        assert abs(t.data[other]) < 1e-3  # flat at a turn: the other moves as sqrt
+        assert t.data["localisation"] == "converged"
+        assert abs(t.data["test_value"]) < 1e-6
+        value = t.point.p if name == "b1" else t.point.extra["b2"]
+        assert value == t.data["value"]
+    # no cusp on a circle (h_ρρ = -2), nothing else reported
+    assert [sp.kind for sp in br.special_points] == [CURVE_TURN] * 3 + [ENDPOINT]
+
+
+def test_fold_curve_without_turns_reports_none(bautin):
+    from contfil.engine.branch import CURVE_TURN
+
+    assert not [sp for sp in bautin[-1].special_points if sp.kind == CURVE_TURN]
+
+
 # ------------------------------------------------------ spec, store, graph
 STORED = """
 [model]

@@ -36,6 +36,9 @@ ENDPOINT = "endpoint"
 CUSP_OF_CYCLES = "cusp_of_cycles"
 #: a two-parameter curve left its range of the second parameter (terminal)
 SECOND_RANGE_END = "second_range_end"
+#: a two-parameter curve turns in one of its parameters (that parameter's
+#: extremum along the curve; ``data["parameter"]`` says which)
+CURVE_TURN = "curve_turn"
 
 
 def _enc(a: Any) -> Any:

@@ -81,6 +81,7 @@ import numpy as np
 
 from contfil.engine.branch import (
     BRANCH_POINT,
+    CURVE_TURN,
     CUSP_OF_CYCLES,
     CYCLE_BRANCH_POINT,
     CYCLE_FOLD,
@@ -124,6 +125,7 @@ SP_LABELS = {
     # on a curve of folds of cycles (two parameters)
     CUSP_OF_CYCLES: "CPC",
     SECOND_RANGE_END: "EP2",
+    CURVE_TURN: "TP",
 }
 
 #: Kinds of a classified-attractor ("state") node and their labels.
@@ -137,7 +139,7 @@ STATE_KINDS = {
 }
 
 # Kinds no switching method exists for (yet): kept as dead-end nodes.
-NOT_SWITCHABLE = frozenset({TORUS, ENDPOINT, CUSP_OF_CYCLES, SECOND_RANGE_END})
+NOT_SWITCHABLE = frozenset({TORUS, ENDPOINT, CUSP_OF_CYCLES, SECOND_RANGE_END, CURVE_TURN})
 
 #: Graph attribute ``contfil_format`` of a GraphML export: names the
 #: attribute encoding described in the module docstring (bump on change).

@@ -12,6 +12,14 @@
   curve) leaves ``[lo, hi]``; a terminal special point, so the curve ends
   on the bound (the first parameter's range ends it as for any branch).
 
+- turn of the curve in one of its parameters (``CURVE_TURN``,
+  :class:`CurveTurnEvent`, one event per parameter): that parameter's
+  component of the tangent changes sign, so the parameter has an extremum
+  along the curve there (the lowest b1 a fold of cycles reaches, say). The
+  curve is regular there; the localiser finds the extremum on the tangent
+  component. At a cusp of cycles one parameter turns too (the curve's
+  projection has a cusp), and the cusp is reported instead.
+
 The problem supplies the test values (``problem.cusp_test(x, p)`` and
 ``problem.second_value(x)``): the events know nothing of shooting.
 """
@@ -23,12 +31,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from contfil.engine.branch import CUSP_OF_CYCLES, SECOND_RANGE_END
+from contfil.engine.branch import CURVE_TURN, CUSP_OF_CYCLES, SECOND_RANGE_END
 from contfil.engine.events.base import Event, EventContext
 
 Array = NDArray[np.float64]
 
-__all__ = ["CuspOfCyclesEvent", "SecondRangeEvent"]
+__all__ = ["CuspOfCyclesEvent", "SecondRangeEvent", "CurveTurnEvent"]
 
 
 class CuspOfCyclesEvent(Event):
@@ -76,3 +84,45 @@ class SecondRangeEvent(Event):
         return self.kind, {"terminal": True, "second_parameter": pb.second,
                            "bound": self.lo if j == 0 else self.hi,
                            pb.second: float(pb.second_value(ctx.x)), "switchable": False}
+
+
+class CurveTurnEvent(Event):
+    """A two-parameter curve turns in its first (continued) or second
+    parameter: that parameter's tangent component changes sign.
+
+    The second parameter is the last unknown of the curve (``X[-2]``), the
+    first is ``X[-1]``. Data: ``parameter`` (its name), ``value`` (the
+    extremum), ``extremum`` (``"max"`` or ``"min"``), the other parameter's
+    name and value, the tangent component at the localised point
+    (``test_value``), ``switchable = False``. Hidden by a cusp of cycles
+    found in the same step (the cusp turns the curve in one parameter).
+    """
+
+    kind = CURVE_TURN
+    suppressed_by = (CUSP_OF_CYCLES,)
+
+    def __init__(self, which: str) -> None:
+        if which not in ("first", "second"):
+            raise ValueError(f"CurveTurnEvent: which must be 'first' or 'second', got {which!r}")
+        self.which = which
+        self.name = f"curve_turn_{which}"
+        self._index = -1 if which == "first" else -2
+
+    def values(self, ctx: EventContext) -> Array:
+        return np.array([float(ctx.tangent[self._index])])
+
+    def special_point_data(self, ctx: EventContext, j: int, ctx0: EventContext,
+                           ctx1: EventContext) -> tuple[str, dict[str, Any]]:
+        pb: Any = ctx.problem
+        first, second = pb.param, pb.second
+        p1, p2 = float(ctx.p), float(pb.second_value(ctx.x))
+        name, value, other, other_value = ((first, p1, second, p2) if self.which == "first"
+                                           else (second, p2, first, p1))
+        # the component goes from + to - at a maximum (the run's orientation)
+        rising = float(ctx0.tangent[self._index]) > 0.0
+        return self.kind, {"parameter": name, "value": value,
+                           "extremum": "max" if rising else "min",
+                           "other_parameter": other, other: other_value,
+                           "second_parameter": second, second: p2,
+                           "test_value": float(ctx.tangent[self._index]),
+                           "switchable": False}

@@ -344,10 +344,15 @@ class CycleFoldCurveProblem(Problem):
         return obs
 
     def default_events(self) -> list:
-        """The cusp of cycles, and the end of ``second_range`` when given."""
-        from contfil.engine.events.cycle_fold_curve import CuspOfCyclesEvent, SecondRangeEvent
+        """The cusp of cycles, the curve's turns in either parameter, and the
+        end of ``second_range`` when given."""
+        from contfil.engine.events.cycle_fold_curve import (
+            CurveTurnEvent,
+            CuspOfCyclesEvent,
+            SecondRangeEvent,
+        )
 
-        evs: list = [CuspOfCyclesEvent()]
+        evs: list = [CuspOfCyclesEvent(), CurveTurnEvent("first"), CurveTurnEvent("second")]
         if self.second_range is not None:
             evs.append(SecondRangeEvent(*self.second_range))
         return evs
