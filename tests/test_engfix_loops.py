@@ -8,7 +8,8 @@ Textbook closed branches with exact answers:
   revolution comes back to the start. Declared as symmetric under
   ``(x, y) -> -(x, y)`` the branch passes through the symmetric point
   ``x = 0`` at the fold ``p = 2`` and from there retraces its own mirror
-  image: it ends just past that fold, on the image of an earlier point;
+  image: with ``loop_images`` it ends just past that fold, on the image of
+  an earlier point (without, after the revolution);
 - an isola of cycles ``ṙ = r g``, ``g = 1/4 - (r² - 1)² - p²``, ``θ̇ = 1 +
   0.3 r²``: the cycles ``(r² - 1)² + p² = 1/4`` with folds of cycles at
   ``p = ±1/2`` (period ``2π / (1 + 0.3 r²)``);
@@ -74,7 +75,7 @@ def test_without_loop_detection_the_circle_goes_round_until_max_points():
 
 
 def test_a_mirror_symmetric_circle_ends_on_the_image_past_the_symmetric_fold():
-    run, br = _circle_run(FLIP)
+    run, br = _circle_run(FLIP, loop_images=True)
     assert run.stop_reason == STOP_CLOSED_LOOP
     assert _kinds(br) == [FOLD, "closed_loop", "endpoint"]
     assert br.special_points[0].point.p == pytest.approx(2.0, abs=1e-9)
@@ -130,3 +131,13 @@ def test_an_isola_of_cycles_ends_after_one_revolution():
     for pt in br.points:
         r2 = float(pt.u @ pt.u)
         assert (r2 - 1) ** 2 + pt.p**2 == pytest.approx(0.25, abs=1e-5)
+
+
+def test_a_declared_mirror_counts_only_when_asked_for():
+    # loop_images off (default): the mirror-symmetric circle goes round once,
+    # through the symmetric fold, back to its start
+    run, br = _circle_run(FLIP)
+    assert run.stop_reason == STOP_CLOSED_LOOP
+    assert _kinds(br) == [FOLD, FOLD, "closed_loop", "endpoint"]
+    assert br.special_points[2].data["image"] == "identity"
+    assert br.special_points[2].data["returns_to"] == 0

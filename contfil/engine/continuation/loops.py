@@ -21,6 +21,13 @@ point ``closed_loop`` with ``terminal``, ``returns_to`` (the earlier point's
 index), ``returns_to_p``, ``image`` and ``loop_distance``; the run stops
 with reason ``"closed_loop"``.
 
+Images under the declared reflections count only with
+``settings.loop_images`` (off by default): with them, every asymmetric
+branch that passes through its own symmetric solution (a pitchfork's apex:
+the explorer's "both halves, one branch") retraces its mirror image from
+there and ends a few points past it, which halves branches the explorer
+is meant to keep whole.
+
 The tolerance is relative and meant for discretisation errors, not
 localisation brackets: a mirror image's phase origin sits at another point
 of the time grid than the original's, so the two are different
@@ -72,14 +79,14 @@ class _ReturnEvent(Event):
 
     name = kind = CLOSED_LOOP
 
-    def __init__(self, mem: _Memory, tol: float) -> None:
-        self.mem, self.tol = mem, tol
+    def __init__(self, mem: _Memory, tol: float, reflections: bool) -> None:
+        self.mem, self.tol, self.reflections = mem, tol, reflections
 
     def values(self, ctx: EventContext) -> Array:
         return np.array([ctx.p - float(self.mem.X[-1])])
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
-        d, image = ctx.problem.loop_distance(ctx.x, ctx.p, self.mem.X[:-1])
+        d, image = ctx.problem.loop_distance(ctx.x, ctx.p, self.mem.X[:-1], self.reflections)
         if not d <= self.tol:
             return None
         return self.kind, {"terminal": True, "returns_to": int(self.mem.index),
@@ -93,6 +100,7 @@ class LoopDetector:
     def __init__(self, pa: PseudoArclength, make_point: Any) -> None:
         s = pa.settings
         self.tol = float(getattr(s, "loop_tol", 0.0) or 0.0)
+        self.reflections = bool(getattr(s, "loop_images", False))
         self.problem = pa.problem
         self.w_p = float(pa.w[-1])
         # its own localiser: a return's location needs no error estimates
@@ -149,7 +157,8 @@ class LoopDetector:
         # the best-matching candidates first; each costs a localisation
         for _, m in sorted(found, key=lambda t: t[0])[:3]:
             try:
-                got = self.localiser.localise(_ReturnEvent(m, self.tol), 0, r0, r1)
+                got = self.localiser.localise(_ReturnEvent(m, self.tol, self.reflections), 0,
+                                               r0, r1)
             except (ContfilError, np.linalg.LinAlgError):
                 continue
             if got is not None:

@@ -106,6 +106,11 @@ class ContinuationSettings:
         declared reflection, to this relative distance (phase-invariant for
         cycles); ``0`` turns it off. Meant to absorb discretisation errors
         (a mirror image is another discretisation of the orbit).
+    loop_images:
+        Also end where the branch reaches the image of an earlier solution
+        under a reflection the model declares (off by default: a branch
+        through its own symmetric solution, e.g. a pitchfork's apex, would
+        end a few points past it).
     verbose:
         Print one line per accepted point.
     """
@@ -135,6 +140,7 @@ class ContinuationSettings:
     krylov: dict[str, Any] = field(default_factory=dict)
     error_estimates: str = "periods"
     loop_tol: float = 1e-4
+    loop_images: bool = False
     verbose: bool = False
 
     @classmethod

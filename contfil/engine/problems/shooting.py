@@ -468,7 +468,8 @@ class PeriodicOrbitProblem(Problem):
         """The period (the state at the phase origin depends on the phase)."""
         return np.array([float(x[self.dim])])
 
-    def loop_distance(self, x: Array, p: float, x_ref: Array) -> tuple[float, str]:
+    def loop_distance(self, x: Array, p: float, x_ref: Array,
+                      reflections: bool = True) -> tuple[float, str]:
         """Phase-invariant relative distance of the orbit of ``x`` from that
         of ``x_ref`` or its image under a declared reflection: the minimum
         over the phase ``θ`` of ``|u - R φ_θ(u_ref)| / |u|`` (full states),
@@ -477,7 +478,7 @@ class PeriodicOrbitProblem(Problem):
         periodic orbit (drift, a frame) or a problem with its own unknowns
         compares states as they are (base class)."""
         if type(self).residual is not PeriodicOrbitProblem.residual:
-            return super().loop_distance(x, p, x_ref)
+            return super().loop_distance(x, p, x_ref, reflections)
         q = self.params_at(p)
         u = np.asarray(self.state(x), dtype=float)
         v0, T = self.split(np.asarray(x_ref, dtype=float))
@@ -489,7 +490,7 @@ class PeriodicOrbitProblem(Problem):
         for _ in range(K - 1):
             samples.append(self.ops.flow(samples[-1], q, h))
         scale = max(float(np.linalg.norm(u)), 1e-300)
-        imgs = self.loop_images()
+        imgs = self.loop_images(reflections)
 
         def dist(w: Array) -> tuple[float, str]:
             full = emb(w)
