@@ -141,3 +141,44 @@ def test_a_declared_mirror_counts_only_when_asked_for():
     assert _kinds(br) == [FOLD, FOLD, "closed_loop", "endpoint"]
     assert br.special_points[2].data["image"] == "identity"
     assert br.special_points[2].data["returns_to"] == 0
+
+
+# ------------------------- cycles through a pitchfork: the mirror, the circle
+
+
+@pytest.mark.parametrize("images", [True, pytest.param(False, marks=pytest.mark.slow)])
+def test_tilted_cycles_through_their_pitchfork_end_on_the_mirror_or_the_start(images):
+    """``coupled_plane_model(k=0)`` solved in the full model (no re-entry
+    event): the tilted cycles lie on the circle ``z² + (β - 1/2)² = a0``
+    through the pitchforks at 0.3 and 0.7, where pseudo-arclength passes
+    from ``z > 0`` to the mirror half ``z < 0`` (``flip_z``). With
+    ``loop_images`` the branch ends a few points past the pitchfork on the
+    image of an earlier orbit (phase-invariant distance); without, after
+    one revolution at its start."""
+    from test_cycle_events_generic import A0, CROSSINGS, coupled_plane_model
+
+    pb = PeriodicOrbitProblem(coupled_plane_model(k=0.0), "beta", steps=20, nev=3)
+    x0 = np.array([np.sqrt(0.5), 0.0, np.sqrt(A0), 2 * np.pi])
+    ds = 0.05  # longer steps jump onto the planar cycles at the pitchfork
+    s = ContinuationSettings(ds=ds, ds_max=ds, p_min=0.1, p_max=0.9, max_points=200,
+                             event_tol=1e-10, error_estimates="off", loop_images=images)
+    run = Continuation(pb, x0, 0.5, s)
+    br = run.run()
+    assert run.stop_reason == STOP_CLOSED_LOOP
+    end = br.special_points[-2]
+    assert end.kind == "closed_loop" and end.data["loop_distance"] < 1e-6
+    bps = [sp.point.p for sp in br.special_points if sp.kind == "cycle_branch_point"]
+    k = end.data["returns_to"]
+    if images:
+        assert bps == pytest.approx([CROSSINGS[1]], abs=1e-7)
+        assert end.data["image"] == "flip_z"
+        # localised on p = p_k to event_tol in arclength
+        assert end.point.p == pytest.approx(br.points[k].p, abs=1e-9)
+        assert end.point.u[2] == pytest.approx(-br.points[k].u[2], abs=1e-7)
+        assert end.point.u[2] < 0 < br.points[k].u[2]
+    else:
+        assert bps == pytest.approx([CROSSINGS[1], CROSSINGS[0]], abs=1e-7)
+        assert end.data["image"] == "identity" and k == 0
+        assert end.point.p == pytest.approx(0.5, abs=1e-12)
+    for pt in br.points:
+        assert pt.u[2] ** 2 + (pt.p - 0.5) ** 2 == pytest.approx(A0, abs=1e-7)
