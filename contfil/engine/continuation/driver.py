@@ -29,10 +29,12 @@ from numpy.typing import NDArray
 from contfil.engine.branch import ENDPOINT, Branch, Point, SpecialPoint
 from contfil.engine.continuation.corrector import Corrector, PseudoArclength, e_last
 from contfil.engine.continuation.localise import Accepted, Localiser
+from contfil.engine.continuation.loops import LoopDetector
 from contfil.engine.continuation.points import make_point
 from contfil.engine.continuation.settings import DS_MIN_SLACK, ContinuationSettings
 from contfil.engine.continuation.state import (
     STOP_BRANCH_END,
+    STOP_CLOSED_LOOP,
     STOP_ERROR,
     STOP_MAX_POINTS,
     STOP_P_MAX,
@@ -131,6 +133,8 @@ class Continuation:
         self.localiser = Localiser(self.pa, lambda ctx, t0, ev0: self._make_point(
             ctx, None, t0, ev0))
         self.w = self.pa.w
+        self.loops = LoopDetector(self.pa, lambda ctx, t0, ev0: self._make_point(
+            ctx, None, t0, ev0))
         self.ds = self.settings.ds
         #: corrector effort of the last successful attempt (step control)
         self._effort: float | None = None
@@ -254,6 +258,7 @@ class Continuation:
                 rec.values[ev.name] = ev.accepted(ctx, rec.values[ev.name])
         self._prev = rec
         self.branch.points.append(pt)
+        self.loops.remember(rec, 0)
         pb.accept(X0[:-1], float(X0[-1]))
         return pt
 
@@ -481,6 +486,14 @@ class Continuation:
         if end is not None:
             new_special = new_special[: end + 1]
             pt = new_special[end][1].point
+        elif self.loops.active:
+            # back on an earlier solution (or its mirror image): the branch
+            # ends there, as at a terminal event (docs/decisions.md 49)
+            loop = self.loops.check(prev, rec, len(self.branch.points))
+            if loop is not None:
+                new_special = [t for t in new_special if t[0] < loop[0]] + [loop]
+                end = len(new_special) - 1
+                pt = loop[1].point
         self.branch.points.append(pt)
         idx = len(self.branch.points) - 2
         for _, sp in new_special:
@@ -499,7 +512,10 @@ class Continuation:
             elif effort >= s.slow_iter:
                 self.ds = max(self.ds * s.slow_shrink, s.ds_min)
         if end is not None:
-            stop = STOP_BRANCH_END
+            stop = STOP_CLOSED_LOOP if new_special[end][1].kind == "closed_loop" \
+                else STOP_BRANCH_END
+        else:
+            self.loops.remember(rec, len(self.branch.points) - 1)
         if stop is None and len(self.branch.points) >= s.max_points:
             stop = STOP_MAX_POINTS
         if stop is not None:

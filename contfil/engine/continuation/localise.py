@@ -231,6 +231,103 @@ class Localiser:
 
 #: Widenings of the coarse bracket tried, in turn, by :func:`location_error`.
 LOCATION_WIDENING = (1.0, 4.0, 16.0, 64.0)
+#: Halvings (towards the bracket's middle) of a widened bracket end whose
+#: fine corrector failed, before :func:`location_error` gives up.
+END_SHRINKS = 4
+#: Fold relocation (:func:`fold_location`): secant steps along the fine
+#: branch from the coarse fold, the longest one (in chord lengths of the
+#: coarse bracket, growing by this factor per step) and corrector retries
+#: (halved steps) per trial.
+FOLD_MARCH_STEPS = 24
+FOLD_MARCH_GROWTH = 4.0
+FOLD_MARCH_RETRIES = 4
+
+
+def _fine_solve(pa: PseudoArclength, guess: Array, c: Array, target: float
+                ) -> tuple[Array, bool | str]:
+    """The corrector on the fine problem; ``(X, True)`` or ``(guess, why)``
+    (a failed flow or a domain error counts as a failed solve, to retry)."""
+    try:
+        X, info = pa.solve(guess, c, target)
+    except (ContfilError, np.linalg.LinAlgError, FloatingPointError) as exc:
+        return guess, f"{type(exc).__name__} ({' '.join(str(exc).split())[:80]})"
+    if info.converged and np.all(np.isfinite(X)):
+        return X, True
+    return guess, str(info.reason)
+
+
+def _is_fold(ev: Any) -> bool:
+    # imported here: the events layer must not be needed to import this module
+    from contfil.engine.events.standard import FoldEvent
+    return isinstance(ev, FoldEvent)
+
+
+def fold_location(pa: PseudoArclength, loc: Localiser, ev: Any, j: int,
+                  XA: Array, XB: Array, r0: Any, r1: Any) -> tuple[float, SpecialPoint]:
+    """A fold (``τ_p = 0``) located on the fine problem of ``pa`` by following
+    the fine branch from the coarse bracket ``XA, XB`` (mapped onto it).
+
+    A fold's bracket cannot be widened at a fixed family of parameter
+    values: past the fine fold there is no fine solution (the discretisation
+    shifts the fold, BDF2's by 0.016 on the filament). The fine solutions
+    are instead taken on the hyperplanes ``<c, X> = σ`` normal (in ``W``) to
+    the coarse chord ``XB - XA`` (the branch's direction at the fold, so the
+    fine branch crosses them transversally near it whatever its shift in
+    ``p``), and ``τ_p``, linear in the arclength at a simple fold, is
+    followed by secant steps in ``σ`` (each trial a corrector from the
+    nearest solution's tangent; a failed one is halved) until it changes sign
+    between two fine solutions; the localiser then finishes between them.
+    Raises :class:`ContfilError` when no sign change is found."""
+    chord = XB - XA
+    c = pa.w * chord
+    h = float(c @ chord)
+    if not h > 0.0:
+        raise ContfilError("the bracket ends coincide")
+    tau = pa.unit(chord)
+    g = ev.localiser(r0.ctx, r1.ctx, j)
+    pts: list[tuple[float, Array, EventContext, float]] = []
+
+    def add(sig: float, guess: Array) -> bool:
+        X, ok = _fine_solve(pa, guess, c, float(c @ XA) + sig)
+        if ok is not True:
+            return False
+        ctx = pa.context(X, tau)
+        pts.append((sig, X, ctx, float(g(ctx))))
+        pts.sort(key=lambda t: t[0])
+        return True
+
+    for sig, X in ((0.0, XA), (h, XB)):
+        if not add(sig, X):
+            raise ContfilError(f"fold: fine solution at the coarse bracket end "
+                               f"{'AB'[int(sig > 0)]} did not converge")
+    reach = h
+    for _ in range(FOLD_MARCH_STEPS):
+        for a, b in zip(pts[:-1], pts[1:], strict=True):
+            if np.isfinite(a[3]) and np.isfinite(b[3]) and a[3] * b[3] <= 0.0:
+                got = loc.localise(ev, j, Accepted(a[1], a[2], r0.point),
+                                   Accepted(b[1], b[2], r1.point))
+                if got is None:
+                    raise ContfilError("fold: the fine localisation rejected the crossing")
+                return got
+        # secant on the two solutions nearest the root (smallest |g|)
+        near = sorted(pts, key=lambda t: abs(t[3]))[:2]
+        (s1, X1, c1, g1), (s2, _, _, g2) = near
+        step = -g1 * (s1 - s2) / (g1 - g2) if g1 != g2 else float("nan")
+        reach *= FOLD_MARCH_GROWTH
+        if not np.isfinite(step) or abs(step) > reach:
+            # a flat or wrong-signed secant: a bounded move the way |g| falls
+            step = float(np.copysign(reach, -(g1 - g2) * (s1 - s2) * g1
+                                     if g1 != g2 else 1.0))
+        dX = c1.tangent / float(c @ c1.tangent)  # dX/dσ at the nearest solution
+        for _ in range(FOLD_MARCH_RETRIES + 1):
+            if add(s1 + step, X1 + step * dX):
+                break
+            step *= 0.5
+        else:
+            raise ContfilError(f"fold: the fine corrector failed {FOLD_MARCH_RETRIES + 1} "
+                               f"times from sigma = {s1:.3g}")
+    raise ContfilError(f"fold: no sign change of the fine test in {FOLD_MARCH_STEPS} "
+                       "secant steps along the fine branch")
 
 
 def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
@@ -240,7 +337,16 @@ def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
     of the coarse run, :class:`~contfil.engine.continuation.localise.Accepted`)
     minus ``p_coarse``. Returns ``{}`` when ``pb`` cannot refine, else
     ``p_error`` (``None`` with ``p_error_failed`` saying why) and
-    ``p_error_time``."""
+    ``p_error_time``.
+
+    A fold (:class:`~contfil.engine.events.standard.FoldEvent`) is followed
+    along the fine branch from the coarse bracket (:func:`fold_location`,
+    ``p_error_method = "fold_march"``). Other events are bracketed on the
+    fine problem between the coarse ends, widened about the middle by
+    :data:`LOCATION_WIDENING` until the fine test changes sign; a widened
+    end whose fine corrector fails is moved back towards the middle (halved,
+    up to :data:`END_SHRINKS` times) and widening stops there
+    (``p_error_method = "bracket"``)."""
     t0 = time.perf_counter()
     fine = refined(pb)
     if fine is None:
@@ -261,29 +367,12 @@ def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
                          params=fine.params_at(ctx.p), kind=fine.kind)
 
         loc = Localiser(pa, make)
-        mid = 0.5 * (XA + XB)
-        got = None
-        # The fine crossing may lie outside the coarse bracket: at a fold the
-        # steps shrink until the bracket is far narrower than the
-        # discretisation's shift of the fold. Widen it about its middle
-        # along the chord until the fine test changes sign.
-        for widen in LOCATION_WIDENING:
-            ends = []
-            for X in (mid - widen * (mid - XA), mid + widen * (XB - mid)):
-                Xf, info = pa.solve(X, c, float(c @ X))
-                if not info.converged:
-                    raise ContfilError(f"fine bracket end (widened {widen:g}x): {info.reason}")
-                ends.append(Xf)
-            tau = pa.unit(ends[1] - ends[0])
-            ctxs = [pa.context(X, tau) for X in ends]
-            got = loc.localise(ev, j, Accepted(ends[0], ctxs[0], r0.point),
-                               Accepted(ends[1], ctxs[1], r1.point))
-            if got is not None:
-                out["p_error_widening"] = float(widen)
-                break
-        if got is None:
-            raise ContfilError("no crossing of the fine test function in the coarse bracket "
-                               f"widened up to {LOCATION_WIDENING[-1]:g}x")
+        if _is_fold(ev):
+            out["p_error_method"] = "fold_march"
+            got = fold_location(pa, loc, ev, j, XA, XB, r0, r1)
+        else:
+            out["p_error_method"] = "bracket"
+            got = _bracket_location(pa, loc, ev, j, XA, XB, c, r0, r1, out)
         sp = got[1]
         out["p_error"] = float(sp.point.p) - float(p_coarse)
         out["p_fine_localisation"] = sp.data.get("localisation")
@@ -294,3 +383,49 @@ def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
         out["error_order"] = int(order)
     out["p_error_time"] = time.perf_counter() - t0
     return out
+
+
+def _bracket_location(pa: PseudoArclength, loc: Localiser, ev: Any, j: int, XA: Array,
+                      XB: Array, c: Array, r0: Any, r1: Any, out: dict[str, Any]
+                      ) -> tuple[float, SpecialPoint]:
+    """The fine crossing between the coarse ends widened about their middle
+    (see :func:`location_error`); ``out`` gets ``p_error_widening`` (and
+    ``p_error_shrinks`` where an end was moved back)."""
+    mid = 0.5 * (XA + XB)
+    # The fine crossing may lie outside the coarse bracket: at a fold the
+    # steps shrink until the bracket is far narrower than the
+    # discretisation's shift of the point. Widen it about its middle along
+    # the chord until the fine test changes sign.
+    last = False
+    for widen in LOCATION_WIDENING:
+        ends = []
+        shrinks = 0
+        for X in (mid - widen * (mid - XA), mid + widen * (XB - mid)):
+            f = 1.0
+            for k in range(END_SHRINKS + 1):
+                Y = mid + f * (X - mid)
+                Xf, why = _fine_solve(pa, Y, c, float(c @ Y))
+                if why is True:
+                    break
+                # no fine solution there (e.g. past a shifted turn of the
+                # fine branch): nearer the middle, not give up at once
+                if k == END_SHRINKS:
+                    raise ContfilError(f"fine bracket end (widened {widen:g}x, halved "
+                                       f"{END_SHRINKS} times): {why}")
+                f *= 0.5
+                shrinks += 1
+            ends.append(Xf)
+        tau = pa.unit(ends[1] - ends[0])
+        ctxs = [pa.context(X, tau) for X in ends]
+        got = loc.localise(ev, j, Accepted(ends[0], ctxs[0], r0.point),
+                           Accepted(ends[1], ctxs[1], r1.point))
+        if got is not None:
+            out["p_error_widening"] = float(widen)
+            if shrinks:
+                out["p_error_shrinks"] = shrinks
+            return got
+        if shrinks:
+            last = True  # wider ends failed already: widening further is no use
+            break
+    raise ContfilError("no crossing of the fine test function in the coarse bracket "
+                       f"widened up to {widen:g}x" + (" (ends halved)" if last else ""))

@@ -100,6 +100,17 @@ class ContinuationSettings:
         ``"points"`` (every point its own fine multipliers too); ``"full"``
         (also the observables' ``error_<name>``). Stored in ``Point.accuracy``
         and ``SpecialPoint.data``.
+    loop_tol:
+        Loop detection (:mod:`.loops`): the run ends (``"closed_loop"``)
+        where the branch returns to an earlier solution or its image under a
+        declared reflection, to this relative distance (phase-invariant for
+        cycles); ``0`` turns it off. Meant to absorb discretisation errors
+        (a mirror image is another discretisation of the orbit).
+    loop_images:
+        Also end where the branch reaches the image of an earlier solution
+        under a reflection the model declares (off by default: a branch
+        through its own symmetric solution, e.g. a pitchfork's apex, would
+        end a few points past it).
     verbose:
         Print one line per accepted point.
     """
@@ -128,6 +139,8 @@ class ContinuationSettings:
     compute_observables: bool = True
     krylov: dict[str, Any] = field(default_factory=dict)
     error_estimates: str = "periods"
+    loop_tol: float = 1e-4
+    loop_images: bool = False
     verbose: bool = False
 
     @classmethod

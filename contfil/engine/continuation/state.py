@@ -26,6 +26,9 @@ STOP_MAX_POINTS = "max_points"
 #: back into its parent: re-entered an invariant subspace, or a relative
 #: periodic orbit collapsed onto a rotating wave)
 STOP_BRANCH_END = "branch_end"
+#: the branch returned to one of its earlier solutions (or its mirror image):
+#: :mod:`contfil.engine.continuation.loops`
+STOP_CLOSED_LOOP = "closed_loop"
 #: the run raised (a :class:`~contfil.errors.StepFailure` or another
 #: :class:`~contfil.errors.ContfilError`)
 STOP_ERROR = "error"

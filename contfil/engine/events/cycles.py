@@ -57,7 +57,13 @@ from contfil.engine.events.stability_change import (
     STABILITY_CHANGE,
     StabilityChangeEvent,
 )
-from contfil.engine.events.standard import BranchPointEvent, Event, EventContext, FoldEvent
+from contfil.engine.events.standard import (
+    APEX_ENDS,
+    BranchPointEvent,
+    Event,
+    EventContext,
+    FoldEvent,
+)
 from contfil.engine.events.subspace import (
     SubspaceBreakingEvent,
     subspace_breaking_multipliers,
@@ -88,6 +94,9 @@ __all__ = [
 class CycleFoldEvent(FoldEvent):
     """Fold (limit point) of cycles: ``τ_p`` changes sign.
 
+    Hidden by a branch end on the parent found in the same step
+    (:data:`~contfil.engine.events.standard.APEX_ENDS`, see
+    :class:`~contfil.engine.events.standard.FoldEvent`).
     A branch point found in the same step does not hide the fold: a branch
     can pass a branch point and turn a little further on within one step
     (tip SF's drifting branch: a pitchfork at b1 = 2213.0495 and the turn at
@@ -102,7 +111,13 @@ class CycleFoldEvent(FoldEvent):
     """
 
     def __init__(self) -> None:
-        super().__init__(kind=CYCLE_FOLD, name="cycle_fold", suppressed_by=())
+        # Only a branch's end on its parent hides it (docs/decisions.md 49):
+        # the step that reaches the merge of a symmetry-broken branch has
+        # crossed the apex of x ~ ±sqrt(p - p0), where τ_p flips with no
+        # fold. Dense problems often caught it above (the determinant
+        # vanishes at the merge), matrix-free ones never did, and a dense
+        # RPO at tip FF's merge did not either (relative test 0.19).
+        super().__init__(kind=CYCLE_FOLD, name="cycle_fold", suppressed_by=APEX_ENDS)
 
     def special_point_data(self, ctx, j, ctx0, ctx1):  # noqa: ANN001, ANN201
         rel = dense_relative_test(ctx, ctx0, ctx1)

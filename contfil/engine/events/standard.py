@@ -24,18 +24,35 @@ if TYPE_CHECKING:
     from contfil.engine.problems.base import Problem
 
 __all__ = [
-    "BranchPointEvent", "Event", "EventContext", "FoldEvent", "HopfEvent", "NODE_FOCUS",
-    "NodeFocusEvent", "RunOptions", "default_events", "merge_events", "normalise_phase",
+    "APEX_ENDS", "BranchPointEvent", "Event", "EventContext", "FoldEvent", "HopfEvent",
+    "NODE_FOCUS", "NodeFocusEvent", "RunOptions", "default_events", "merge_events",
+    "normalise_phase",
 ]
 
 Array = NDArray[np.float64]
 
 NODE_FOCUS = "node_focus"  # not a bifurcation: two real eigenvalues merge into a complex pair
+#: Branch ends at which the branch turns in ``p`` (a symmetry-broken branch
+#: merging back into its parent's invariant subspace at a pitchfork): a fold
+#: test flipping in the step that finds one is the apex, not a fold. The
+#: rotating-wave collapse is not one: there ``A² ∝ p - p_end`` is monotone
+#: in ``p``, and the run stops before the singular end.
+APEX_ENDS = ("subspace_reentry",)
 
 
 class FoldEvent(Event):
     """Fold (saddle-node / limit point): the ``p`` component of the tangent
-    changes sign. Suppressed when a branch point is found in the same step.
+    changes sign. Suppressed when a branch point, or the end of a branch on
+    its parent (:data:`APEX_ENDS`), is found in the same step.
+
+    Why the end hides it: a symmetry-broken branch ``x ~ ±sqrt(p - p0)``
+    merging back into its parent at a pitchfork turns in ``p`` exactly at
+    the merge (the apex of the parabola), and the step that reaches the end
+    has crossed it onto the mirror half, so ``τ_p`` flips in that step with
+    no fold of the branch. A genuine fold inside that step would flip
+    ``τ_p`` a second time (no net sign change), so a single flip there is
+    the apex; a fold one step or more before the end is reported as usual
+    (docs/decisions.md 49).
 
     Parameters
     ----------
@@ -49,13 +66,13 @@ class FoldEvent(Event):
     """
 
     name = "fold"
-    suppressed_by = (BRANCH_POINT, CYCLE_BRANCH_POINT)
+    suppressed_by = (BRANCH_POINT, CYCLE_BRANCH_POINT, *APEX_ENDS)
 
     def __init__(
         self,
         kind: str = FOLD,
         name: str = "fold",
-        suppressed_by: tuple[str, ...] = (BRANCH_POINT, CYCLE_BRANCH_POINT),
+        suppressed_by: tuple[str, ...] = (BRANCH_POINT, CYCLE_BRANCH_POINT, *APEX_ENDS),
     ) -> None:
         self.kind = kind
         self.name = name

@@ -169,6 +169,46 @@ class Problem(ABC):
         """Kind-specific unknowns in ``x`` (period, omega, drift)."""
         return {}
 
+    # ------------------------------------------------------- loop detection
+    def loop_images(self, reflections: bool = True) -> dict[str, Array]:
+        """The state maps under which a solution counts as the same one for
+        loop detection: ``"identity"`` (an empty matrix) and, with
+        ``reflections``, the model's declared reflections
+        (``model.symmetries.reflections``, matrices on the full state)."""
+        out: dict[str, Array] = {"identity": np.eye(0)}
+        if not reflections:
+            return out
+        sym = getattr(getattr(self, "model", None), "symmetries", None)
+        for name, R in (getattr(sym, "reflections", None) or {}).items():
+            out[str(name)] = np.asarray(R, dtype=float)
+        return out
+
+    def loop_key(self, x: Array) -> Array:
+        """Cheap scalars that a return to an earlier solution (or its image
+        under :meth:`loop_images`) must reproduce: here the state's norm
+        (reflections are orthogonal) and the kind's unknowns other than a
+        drift (a reflection reverses a drift)."""
+        ex = [float(v) for k, v in self.extra(x).items() if k != "drift"]
+        return np.array([float(np.linalg.norm(self.state(x))), *ex])
+
+    def loop_distance(self, x: Array, p: float, x_ref: Array,
+                      reflections: bool = True) -> tuple[float, str]:
+        """Relative distance of the solution ``x`` from ``x_ref`` or its
+        nearest image (:meth:`loop_images`) and that image's name. Default:
+        the states compared as they are, which for a periodic orbit depends
+        on the phase origin (a return may then go unseen, never be seen
+        falsely); :class:`~contfil.engine.problems.shooting.PeriodicOrbitProblem`
+        minimises over the phase."""
+        u, v = np.asarray(self.state(x), dtype=float), np.asarray(self.state(x_ref), dtype=float)
+        scale = max(float(np.linalg.norm(u)), float(np.linalg.norm(v)), 1e-300)
+        best = (float("inf"), "identity")
+        for name, R in self.loop_images(reflections).items():
+            w = v if R.size == 0 else R @ v
+            d = float(np.linalg.norm(u - w)) / scale
+            if d < best[0]:
+                best = (d, name)
+        return best
+
     # ------------------------------------------------------- optional hooks
     def params_at(self, p: float) -> Array:
         """The model's full parameter vector at ``p`` (default: ``[p]``)."""

@@ -459,6 +459,70 @@ class PeriodicOrbitProblem(Problem):
     def extra(self, x: Array) -> dict[str, float]:
         return {"period": float(x[self.dim])}
 
+    #: Samples along the reference orbit of :meth:`loop_distance` before
+    #: the phase is refined (golden section over two sample intervals).
+    LOOP_SAMPLES = 32
+    LOOP_REFINE = 24
+
+    def loop_key(self, x: Array) -> Array:
+        """The period (the state at the phase origin depends on the phase)."""
+        return np.array([float(x[self.dim])])
+
+    def loop_distance(self, x: Array, p: float, x_ref: Array,
+                      reflections: bool = True) -> tuple[float, str]:
+        """Phase-invariant relative distance of the orbit of ``x`` from that
+        of ``x_ref`` or its image under a declared reflection: the minimum
+        over the phase ``θ`` of ``|u - R φ_θ(u_ref)| / |u|`` (full states),
+        from :data:`LOOP_SAMPLES` samples of the reference orbit refined by
+        golden section on ``θ`` (flows at the parameter ``p``). A relative
+        periodic orbit (drift, a frame) or a problem with its own unknowns
+        compares states as they are (base class)."""
+        if type(self).residual is not PeriodicOrbitProblem.residual:
+            return super().loop_distance(x, p, x_ref, reflections)
+        q = self.params_at(p)
+        u = np.asarray(self.state(x), dtype=float)
+        v0, T = self.split(np.asarray(x_ref, dtype=float))
+        emb = (lambda w: np.asarray(self.subspace.embed(w), dtype=float)) if self.subspace \
+            else (lambda w: np.asarray(w, dtype=float))
+        K = self.LOOP_SAMPLES
+        h = T / K
+        samples = [np.array(v0, dtype=float)]
+        for _ in range(K - 1):
+            samples.append(self.ops.flow(samples[-1], q, h))
+        scale = max(float(np.linalg.norm(u)), 1e-300)
+        imgs = self.loop_images(reflections)
+
+        def dist(w: Array) -> tuple[float, str]:
+            full = emb(w)
+            return min((float(np.linalg.norm(u - (full if R.size == 0 else R @ full))) / scale,
+                        name) for name, R in imgs.items())
+
+        d = [dist(w) for w in samples]
+        i = int(np.argmin([t[0] for t in d]))
+        name = d[i][1]
+        R = imgs[name]
+
+        def at(t: float) -> float:
+            # the orbit at phase t (0 <= t <= 2h) after sample i - 1
+            w = samples[(i - 1) % K]
+            full = emb(self.ops.flow(w, q, t) if t > 0 else w)
+            return float(np.linalg.norm(u - (full if R.size == 0 else R @ full))) / scale
+
+        g = 0.5 * (np.sqrt(5.0) - 1.0)
+        a, b = 0.0, 2 * h
+        c, e = b - g * (b - a), a + g * (b - a)
+        fc, fe = at(c), at(e)
+        for _ in range(self.LOOP_REFINE):
+            if fc < fe:
+                b, e, fe = e, c, fc
+                c = b - g * (b - a)
+                fc = at(c)
+            else:
+                a, c, fc = c, e, fe
+                e = a + g * (b - a)
+                fe = at(e)
+        return min(fc, fe, d[i][0]), name
+
     def observables(self, x: Array, p: float) -> dict[str, Any]:
         """Model observables at the phase origin, plus ``period`` (and period means)."""
         q = self.params_at(p)
