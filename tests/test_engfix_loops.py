@@ -182,3 +182,20 @@ def test_tilted_cycles_through_their_pitchfork_end_on_the_mirror_or_the_start(im
         assert end.point.p == pytest.approx(0.5, abs=1e-12)
     for pt in br.points:
         assert pt.u[2] ** 2 + (pt.p - 0.5) ** 2 == pytest.approx(A0, abs=1e-7)
+
+
+def test_spec_sets_the_loop_settings_and_refuses_bad_values() -> None:
+    from contfil.app.spec import loads_spec
+    from contfil.app.study import engine_settings
+    from contfil.errors import SpecError
+
+    base = '[model]\nname = "pitchfork"\n[continuation]\nrange = [-1.0, 1.0]\n'
+    s = engine_settings(loads_spec(base))
+    assert s.loop_tol == 1e-4 and s.loop_images is False  # the engine's defaults
+    s = engine_settings(loads_spec(base + "loop_tol = 0.0\nloop_images = true\n"))
+    assert s.loop_tol == 0.0 and s.loop_images is True
+    for bad, words in (("loop_tol = -1.0", "continuation.loop_tol"),
+                       ('loop_images = "yes"', "continuation.loop_images")):
+        with pytest.raises(SpecError) as e:
+            loads_spec(base + bad + "\n")
+        assert words in str(e.value) and "\n" not in str(e.value)

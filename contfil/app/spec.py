@@ -211,6 +211,13 @@ SCHEMA: dict[str, dict[str, tuple[Checker, Any, bool, str]]] = {
         "max_newton": (_integer(1), 10, False, "Newton iterations per step"),
         "stability": (_boolean, True, False, "compute eigenvalues/multipliers at points"),
         "both_directions": (_boolean, False, False, "continue the root branch both ways"),
+        "loop_tol": (_number(nonneg=True), 1e-4, False,
+                     "a branch that returns to an earlier solution (relative distance, "
+                     "phase-free for cycles) ends there (closed_loop); 0: off"),
+        "loop_images": (_boolean, False, False,
+                        "also end where the branch reaches the mirror image of an earlier "
+                        "solution under a reflection the model declares (off: a branch "
+                        "through its own symmetric solution would end past it)"),
         "error_estimates": (_choice(*ERROR_ESTIMATE_MODES), "periods", False,
                             "error estimates from two resolutions (docs/accuracy.md): off, "
                             "special (special points: p_error), periods (also every point's "

@@ -190,6 +190,7 @@ def engine_settings(spec: Spec) -> ContinuationSettings:
         newton_tol=c["tol"], newton_max_iter=c["max_newton"], theta=c["theta"],
         compute_stability=c["stability"],
         error_estimates=c["error_estimates"],
+        loop_tol=c["loop_tol"], loop_images=c["loop_images"],
     )
 
 
