@@ -240,8 +240,10 @@ def point_errors(pb: Problem, x: Array, p: float, s: ContinuationSettings,
         if not info.converged:
             raise ContfilError(f"fine solve: {info.reason}")
         coarse_extra = pb.extra(x)
+        # a problem may name more of its unknowns (a curve's second parameter)
+        compared = EXTRA_UNKNOWNS + tuple(getattr(pb, "error_unknowns", ()))
         for k, v in fine.extra(xf).items():
-            if k in coarse_extra and k in EXTRA_UNKNOWNS:
+            if k in coarse_extra and k in compared:
                 out[f"{k}_error"] = float(v) - float(coarse_extra[k])
         if multipliers and stability is not None and s.compute_stability:
             out["multiplier_error"] = multiplier_error(stability, fine.stability(xf, p, False))

@@ -57,6 +57,7 @@ block).
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -134,6 +135,9 @@ class CycleFoldCurveProblem(Problem):
                 raise SpecError(f"second_range must be [lo, hi] with lo < hi, got {second_range}")
             second_range = (lo, hi)
         self.second_range = second_range
+        #: the second parameter is an unknown: its fine - coarse at the same
+        #: first parameter is the point's ``<second>_error``
+        self.error_unknowns = (second,)
         self.b: Array | None = None
         self.c: Array | None = None
         #: border refreshes so far (one per accepted point)
@@ -303,6 +307,33 @@ class CycleFoldCurveProblem(Problem):
             self.b = np.array(data["fold_b"], dtype=float)
             self.c = np.array(data["fold_c"], dtype=float)
         self._null = self._der = None
+
+    # --- error estimates from two resolutions ----------------------------------
+    def refine(self, factor: int = 2) -> CycleFoldCurveProblem | None:
+        """The same curve on the refined shooting problem (``factor`` times its
+        steps), with this curve's borders: solved at the same first parameter,
+        its fold gives the discretisation's shift of the second parameter
+        (``<second>_error``) and of the period; a special point located
+        again on it, the ``p_error``. ``None`` if the base cannot refine."""
+        fb = self.base.refine(factor)
+        if fb is None:
+            return None
+        # a parameter vector of its own: both problems set p2 before evaluating
+        fb.base_params = np.array(self.base.base_params, dtype=float, copy=True)
+        fine = copy.copy(self)
+        fine.base = fb
+        fine.discretisation_order = fb.discretisation_order
+        fine.b = None if self.b is None else self.b.copy()
+        fine.c = None if self.c is None else self.c.copy()
+        fine.border_refreshes = 0
+        fine._null = fine._der = fine._stab = None
+        return fine
+
+    def onto_refined(self, y: Array, fine: Problem) -> Array:
+        """``(x, p2)`` carried onto ``fine``: the base's ``x`` mapping, ``p2`` as is."""
+        y = np.asarray(y, dtype=float)
+        x = self.base.onto_refined(y[:-1], fine.base)  # type: ignore[attr-defined]
+        return np.append(x, float(y[-1]))
 
     # --- what a point stores -------------------------------------------------
     def state(self, y: Array) -> Array:
