@@ -127,6 +127,24 @@ def test_bautin_curve_exact_along_it(bautin):
     assert br.meta["stop_reason"] == "p_max"
 
 
+def test_bautin_curve_error_estimates_are_31_32_of_the_true_errors(bautin):
+    """Every point's fine solve at its own β2 (twice the Radau steps) gives
+    the shift of the second parameter (``b1_error``) and of the period: the
+    exact curve β1 = -β2²/4 and period 2π say how large the coarse errors
+    are, and order 5 says the estimate is 31/32 of them."""
+    *_, br = bautin
+    for pt in br.points:
+        acc = pt.accuracy
+        true_b1 = -pt.p**2 / 4 - pt.extra["b1"]
+        assert abs(true_b1) > 1e-9  # the discrete fold visibly off (4e-9)
+        assert acc["b1_error"] / true_b1 == pytest.approx(31 / 32, rel=1e-3)
+        # the period's shift is only 6e-10: the next order's term and the
+        # solve's tolerance still show (0.984 measured), so between 31/32 and 1
+        true_T = TWO_PI - pt.extra["period"]
+        assert 0.96 < acc["period_error"] / true_T < 1.0
+        assert acc["error_order"] == 5
+
+
 def test_bautin_newton_converges_quadratically(bautin):
     cp2, y, p = _curve_problem(bautin[0], bautin[1], "b2", "b1")
     run = Continuation(cp2, y, p, ContinuationSettings(ds=0.05))
@@ -217,7 +235,10 @@ def cusp():
     fold = _fold_by_one_parameter_run(m, "b1", np.array([np.sqrt(1 + s0), 0.0, TWO_PI]), b10,
                                       -0.5)
     cp, y0, p1 = _curve_problem(m, fold, "b1", "b2", second_range=(-1.0, 0.8))
-    s = ContinuationSettings(ds=0.15, ds_max=0.3, max_points=40, p_max=0.5)
+    # the points' own estimates are tested on the Bautin curve: here only
+    # the special points get them (the cusp's p_error)
+    s = ContinuationSettings(ds=0.15, ds_max=0.3, max_points=40, p_max=0.5,
+                             error_estimates="special")
     br = Continuation(cp, y0, p1, s).run()
     return m, fold, br
 
@@ -319,6 +340,24 @@ def test_fold_curve_turns_in_both_parameters_at_the_exact_extrema():
         assert value == t.data["value"]
     # no cusp on a circle (h_ρρ = -2), nothing else reported
     assert [sp.kind for sp in br.special_points] == [CURVE_TURN] * 3 + [ENDPOINT]
+    # error estimates from twice the steps (Radau, order 5: 31/32 of the
+    # true error): a turn in b1 (the continued parameter) is a fold of the
+    # curve, relocated along the fine curve; its point estimates are the
+    # fine turn's own (a solve at the coarse b1 would have no fine solution
+    # on one side: it returned b2_error = -119 at b1's minimum)
+    for t in turns:
+        d, acc = t.data, t.point.accuracy
+        sign = 1.0 if d["extremum"] == "max" else -1.0
+        true = sign * R_CIRCLE - d["value"]  # +-4.3e-9: the Radau shift of the folds
+        if d["parameter"] == "b1":
+            assert d["p_error_method"] == "fold_march"
+            assert d["p_error"] / true == pytest.approx(31 / 32, rel=1e-3)
+            assert acc["error_method"] == "located"
+            assert abs(acc["b2_error"]) < 1e-9  # b2 = 0 at either turn
+        else:
+            assert abs(d["p_error"]) < 1e-9  # b1 = 0 at either turn of b2
+            assert acc["b2_error"] / true == pytest.approx(31 / 32, rel=1e-3)
+        assert abs(acc["period_error"]) < 1e-9  # every cycle has period 2π
 
 
 def test_fold_curve_without_turns_reports_none(bautin):

@@ -22,7 +22,12 @@ from numpy.typing import NDArray
 
 from contfil.engine.branch import Point, SpecialPoint
 from contfil.engine.continuation.corrector import PseudoArclength
-from contfil.engine.continuation.error_estimates import add_point_errors, refined
+from contfil.engine.continuation.error_estimates import (
+    EXTRA_UNKNOWNS,
+    add_point_errors,
+    multiplier_error,
+    refined,
+)
 from contfil.engine.continuation.settings import ContinuationSettings
 from contfil.engine.events.base import Event, EventContext
 from contfil.engine.problems.base import Problem
@@ -220,12 +225,20 @@ class Localiser:
             pt.n_unstable = ctx.stability.n_unstable
         mode = getattr(self.settings, "error_estimates", "off")
         if mode != "off":
-            if mode in ("special", "periods"):
+            turn = _is_fold(ev)
+            if mode in ("special", "periods") and not turn:
                 # the point's own estimates, fine multipliers included
                 add_point_errors(pt, self.pa.problem, ctx, self.settings, special=True)
             # the location again on the refined problem (p_error; nothing
             # for a problem that cannot refine)
-            data.update(location_error(self.pa.problem, self.settings, ev, j, r0, r1, pt.p))
+            found: list = []
+            data.update(location_error(self.pa.problem, self.settings, ev, j, r0, r1, pt.p,
+                                       found=found))
+            if mode in ("special", "periods") and turn:
+                # at a turn in p a solve at this p has no solution on one side
+                # (or two nearby): the estimates are the fine turn's own
+                pt.accuracy.update(located_point_errors(self.pa.problem, ctx, found,
+                                                        self.settings))
         return float(sm), SpecialPoint(kind, pt, -1, data)
 
 
@@ -257,9 +270,8 @@ def _fine_solve(pa: PseudoArclength, guess: Array, c: Array, target: float
 
 
 def _is_fold(ev: Any) -> bool:
-    # imported here: the events layer must not be needed to import this module
-    from contfil.engine.events.standard import FoldEvent
-    return isinstance(ev, FoldEvent)
+    """The event is a turn of the branch in ``p`` (a fold; ``Event.turns_in_p``)."""
+    return bool(getattr(ev, "turns_in_p", False))
 
 
 def fold_location(pa: PseudoArclength, loc: Localiser, ev: Any, j: int,
@@ -330,8 +342,38 @@ def fold_location(pa: PseudoArclength, loc: Localiser, ev: Any, j: int,
                        "secant steps along the fine branch")
 
 
+def located_point_errors(pb: Problem, ctx: Any, found: list, s: ContinuationSettings
+                         ) -> dict[str, Any]:
+    """A turn's point estimates from the turn located again on the refined
+    problem (``found``: ``[(fine problem, fine context)]`` from
+    :func:`location_error`, empty when that failed): ``<k>_error`` of the
+    kind's unknowns (and the problem's ``error_unknowns``) and
+    ``multiplier_error``, fine turn minus coarse turn; ``error_method =
+    "located"``. ``{"error_estimate_failed": 1.0}`` without a fine turn."""
+    if not found:
+        return {"error_estimate_failed": 1.0}
+    fine, fctx = found[0]
+    out: dict[str, Any] = {}
+    compared = EXTRA_UNKNOWNS + tuple(getattr(pb, "error_unknowns", ()))
+    coarse_extra, fine_extra = pb.extra(ctx.x), fine.extra(fctx.x)
+    for k, v in fine_extra.items():
+        if k in coarse_extra and k in compared:
+            out[f"{k}_error"] = float(v) - float(coarse_extra[k])
+    try:
+        if s.compute_stability:
+            out["multiplier_error"] = multiplier_error(ctx.stability, fctx.stability)
+    except (ContfilError, np.linalg.LinAlgError, ValueError, FloatingPointError):
+        pass
+    order = getattr(fine, "discretisation_order", None)
+    if order:
+        out["error_order"] = float(order)
+    out["error_method"] = "located"
+    return out
+
+
 def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
-                   r0: Any, r1: Any, p_coarse: float) -> dict[str, Any]:
+                   r0: Any, r1: Any, p_coarse: float,
+                   found: list | None = None) -> dict[str, Any]:
     """``p_error``: the event ``ev`` (crossing ``j``) located again on the
     refined problem between the bracket ends ``r0``, ``r1`` (accepted points
     of the coarse run, :class:`~contfil.engine.continuation.localise.Accepted`)
@@ -346,7 +388,8 @@ def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
     :data:`LOCATION_WIDENING` until the fine test changes sign; a widened
     end whose fine corrector fails is moved back towards the middle (halved,
     up to :data:`END_SHRINKS` times) and widening stops there
-    (``p_error_method = "bracket"``)."""
+    (``p_error_method = "bracket"``). ``found``, when given, receives
+    ``(fine problem, fine context)`` of the located point."""
     t0 = time.perf_counter()
     fine = refined(pb)
     if fine is None:
@@ -362,9 +405,12 @@ def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
         if not np.any(c):
             raise ContfilError("the bracket ends coincide")
 
+        made: list = []
+
         def make(ctx: Any, t: float, e: int) -> Point:
+            made.append(ctx)
             return Point(u=np.asarray(fine.state(ctx.x), dtype=float), p=ctx.p,
-                         params=fine.params_at(ctx.p), kind=fine.kind)
+                         params=fine.params_of(ctx.x, ctx.p), kind=fine.kind)
 
         loc = Localiser(pa, make)
         if _is_fold(ev):
@@ -376,6 +422,8 @@ def location_error(pb: Problem, s: ContinuationSettings, ev: Any, j: int,
         sp = got[1]
         out["p_error"] = float(sp.point.p) - float(p_coarse)
         out["p_fine_localisation"] = sp.data.get("localisation")
+        if found is not None and made:
+            found.append((fine, made[-1]))
     except (ContfilError, np.linalg.LinAlgError, ValueError, FloatingPointError) as exc:
         out["p_error_failed"] = " ".join(str(exc).split())[:200] or type(exc).__name__
     order = getattr(fine, "discretisation_order", None)

@@ -172,6 +172,11 @@ class Event:
     kind: str = ""
     needs_stability: bool = False
     suppressed_by: tuple[str, ...] = ()
+    #: The branch turns in ``p`` at the special point (a fold): there is no
+    #: solution at a fixed ``p`` on one side, so a refined discretisation's
+    #: estimates come from the same event located again on it, not from a
+    #: solve at the coarse point's ``p``.
+    turns_in_p: bool = False
 
     def values(self, ctx: EventContext) -> Array:
         """Test functions at ``ctx``; a special point where one changes sign."""

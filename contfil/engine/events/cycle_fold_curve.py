@@ -107,6 +107,8 @@ class CurveTurnEvent(Event):
         self.which = which
         self.name = f"curve_turn_{which}"
         self._index = -1 if which == "first" else -2
+        # a turn in the continued parameter is a fold of the curve in p
+        self.turns_in_p = which == "first"
 
     def values(self, ctx: EventContext) -> Array:
         return np.array([float(ctx.tangent[self._index])])

@@ -66,6 +66,7 @@ class FoldEvent(Event):
     """
 
     name = "fold"
+    turns_in_p = True
     suppressed_by = (BRANCH_POINT, CYCLE_BRANCH_POINT, *APEX_ENDS)
 
     def __init__(
