@@ -1,0 +1,115 @@
+"""Run a study whose root cycle is a point of a stored curve of folds of cycles (issue 12).
+
+``contfil run`` restarts a stored cycle only from a ``periodic_orbit`` (or
+relative) branch: ``[start] branch`` naming a ``cycle_fold_curve`` branch is
+refused (``contfil.explore.start.start_problem``). A point of a curve of
+folds is an ordinary cycle (its state at the phase origin, its period, and
+both parameters), so this script builds the root seed from it the way
+:func:`contfil.explore.start.stored_start` builds one from a cycle branch
+(the same single-shooting problem, the model's own flow and period means,
+the stored parameters mapped by the model's ``stored_params``) and runs the
+spec's study with it, writing the run directory as ``contfil run`` does
+(same manifest, task logs, graph; the root's ``start`` meta names the curve
+point). Any other spec is passed to :func:`contfil.app.study.run_study`.
+
+Used for tip FF's detached family (docs/high-actuation.md "Session 14"):
+the fold orbit of the two-actuation filament's LPC2 curve
+(``branches/data/tip_mix_planar_lpc2_curve``) continued in b1 at its f.
+
+Usage::
+
+    OPENBLAS_NUM_THREADS=1 nice python benchmarks/tip_ff_detached.py \
+        branches/tip_ff_detached_b1.toml --out branches/data/tip_ff_detached_b1 --no-plots
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from contfil.app import study as st  # noqa: E402
+from contfil.app.spec import load_spec  # noqa: E402
+from contfil.explore.progress import ProgressDisplay  # noqa: E402
+from contfil.explore.seeds import Seed  # noqa: E402
+from contfil.explore.start import (  # noqa: E402
+    StartChoice,
+    select_branch,
+    select_point,
+    start_problem,
+    stored_subspace,
+)
+from contfil.explore.switchers import default_switchers  # noqa: E402
+from contfil.store.run_store import RunStore, load_run_graph  # noqa: E402
+
+
+def curve_point_seed(spec: st.Spec, info: st.ModelInfo) -> Seed | None:
+    """The root seed from a point of a stored ``cycle_fold_curve`` branch, or
+    ``None`` when the spec's ``[start]`` names no such branch."""
+    if spec.start is None or spec.start.get("branch") is None:
+        return None
+    run = st.start_run_dir(spec)
+    graph = load_run_graph(run)
+    bid = select_branch(graph, spec.start["branch"])
+    br = graph.branch(bid)
+    if br.kind != "cycle_fold_curve":
+        return None
+    model = info.model
+    param = st.continuation_parameter(spec, info)
+    k = select_point(br, spec.start["point"], None)
+    pt = br.points[k]
+    manifest = RunStore.read_manifest(run).get("spec") or {}
+    params = np.asarray(model.stored_params(manifest, br.param, np.asarray(pt.params)),
+                        dtype=float)
+    u = np.asarray(pt.u, dtype=float)
+    sub = stored_subspace(model, u, spec.start["subspace"])
+    problem = start_problem(model, "periodic_orbit", param, params, sub, spec.start["steps"])
+    x0 = np.concatenate([u if sub is None else np.asarray(problem.subspace.project(u)),
+                         [float(pt.extra["period"])]])
+    p0 = float(params[list(model.param_names).index(param)])
+    c = spec.continuation
+    lo, hi = c["range"]
+    if not lo <= p0 <= hi:
+        raise SystemExit(f"the curve point has {param} = {p0}, outside {c['range']}")
+    choice = StartChoice(run=run, branch_id=bid, index=k, p=float(pt.p), subspace=sub)
+    return Seed(problem=problem, x0=x0, p0=p0, direction=int(c["direction"]),
+                both_directions=bool(c["both_directions"]),
+                label=f"{bid}[{k}] of {run.name}",
+                info={"start": {**choice.describe(), "params": [float(v) for v in params]}})
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("spec")
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--no-plots", action="store_true")
+    a = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    spec = load_spec(a.spec)
+    info = st.build_model(spec)
+    seed = curve_point_seed(spec, info)
+    if seed is None:
+        res = st.run_study(spec, out=a.out, plots=not a.no_plots and None)
+    else:
+        # run_study's body with this seed (everything else as `contfil run`)
+        store = RunStore(Path(a.out), spec=st._results_spec(spec.raw), spec_text=spec.text,
+                         resume=False, fsync=spec.output["fsync"])
+        try:
+            res = st._run(spec, info, seed, st.engine_settings(spec),
+                          st.explorer_settings(spec), default_switchers(), None, store,
+                          ProgressDisplay(), Path(a.out), False,
+                          False if a.no_plots else None)
+        finally:
+            store.close()
+    print(f"{res.n_computed_points} points in {time.perf_counter() - t0:.1f} s wall, "
+          f"{time.process_time():.1f} s CPU; {res.run_dir}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
