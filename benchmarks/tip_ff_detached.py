@@ -16,10 +16,16 @@ Used for tip FF's detached family (docs/high-actuation.md "Session 14"):
 the fold orbit of the two-actuation filament's LPC2 curve
 (``branches/data/tip_mix_planar_lpc2_curve``) continued in b1 at its f.
 
+``--summary`` reads the stored session-14 runs and prints the numbers the
+docs cite (folds of each scan with p_error and period, the lower curve's
+lowest b1 with the spread of three fits, its ends against tip SF's LPC4 and
+the LPC1 curve's end); it computes nothing.
+
 Usage::
 
     OPENBLAS_NUM_THREADS=1 nice python benchmarks/tip_ff_detached.py \
-        branches/tip_ff_detached_b1.toml --out branches/data/tip_ff_detached_b1 --no-plots
+        branches/tip_ff_detached_f_b775.toml --out branches/data/tip_ff_detached_f_b775 --no-plots
+    python benchmarks/tip_ff_detached.py --summary
 """
 
 from __future__ import annotations
@@ -83,18 +89,73 @@ def curve_point_seed(spec: st.Spec, info: st.ModelInfo) -> Seed | None:
                 info={"start": {**choice.describe(), "params": [float(v) for v in params]}})
 
 
+DATA = Path(__file__).resolve().parents[1] / "branches" / "data"
+SCANS = ("tip_ff_detached_f_b775", "tip_ff_detached_b1_f321", "tip_ff_detached_f_b239")
+CURVES = ("tip_ff_detached_lower_curve", "tip_ff_detached_lpc3_curve",
+          "tip_mix_planar_lpc2_curve", "tip_mix_planar_lpc1_curve")
+
+
+def summary() -> None:
+    """Print the stored runs' folds and the lower curve's lowest b1 and ends."""
+    for name in SCANS:
+        if not (DATA / name).is_dir():
+            continue
+        g = load_run_graph(DATA / name)
+        (bid,) = list(g.branches)
+        br = g.branch(bid)
+        p = [float(pt.p) for pt in br.points]
+        fixed = br.points[0].params
+        print(f"{name}: {br.param} in [{min(p):.4f}, {max(p):.4f}] at (f, b1) = "
+              f"{np.round(fixed, 4).tolist()}, {len(p)} points, "
+              f"{sum(pt.n_unstable == 0 for pt in br.points)} stable")
+        for s, sp in sorted(g.special_points.items(), key=lambda kv: kv[1].index):
+            pt = sp.point
+            print(f"  {g.label(s):6s} {sp.kind:12s} {br.param} = {float(pt.p):.5f} "
+                  f"(p_error {sp.data.get('p_error', float('nan')):+.1e}) T = "
+                  f"{float(pt.extra['period']):.7f} unstable {pt.n_unstable}")
+    for name in CURVES:
+        if not (DATA / name).is_dir():
+            continue
+        g = load_run_graph(DATA / name)
+        br = g.branch(next(iter(g.branches)))
+        cv = np.array([pt.params for pt in br.points], dtype=float)
+        T = np.array([pt.extra["period"] for pt in br.points], dtype=float)
+        dev = np.abs(np.array([pt.observables["fold_multiplier"] for pt in br.points]) - 1)
+        k = int(np.argmin(cv[:, 1]))
+        print(f"{name}: {len(cv)} points, ends (f, b1, T) = {cv[0].round(5).tolist()} "
+              f"{T[0]:.7f} and {cv[-1].round(5).tolist()} {T[-1]:.7f}; "
+              f"|fold multiplier - 1| median {np.median(dev):.1e} max {dev.max():.1e}")
+        if 2 <= k < len(cv) - 3:
+            fits = []
+            for w in (1, 2, 3):
+                s_ = slice(k - w, k + w + 1)
+                c = np.polyfit(T[s_], cv[s_, 1], 2)
+                tm = -c[1] / (2 * c[0])
+                fits.append((float(np.polyval(np.polyfit(T[s_], cv[s_, 0], 2), tm)),
+                             float(np.polyval(c, tm))))
+            f_, b_ = np.array(fits).T
+            print(f"  lowest b1 = {b_[1]:.3f} +- {np.ptp(b_):.3f} at f = {f_[1]:.3f} +- "
+                  f"{np.ptp(f_):.3f} (parabolas in T through 3, 5, 7 points)")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("spec")
-    ap.add_argument("--out", required=True)
+    ap.add_argument("spec", nargs="?")
+    ap.add_argument("--out")
     ap.add_argument("--no-plots", action="store_true")
+    ap.add_argument("--summary", action="store_true")
     a = ap.parse_args(argv)
+    if a.summary:
+        summary()
+        return 0
+    if a.spec is None or a.out is None:
+        ap.error("a spec and --out (or --summary)")
     t0 = time.perf_counter()
     spec = load_spec(a.spec)
     info = st.build_model(spec)
     seed = curve_point_seed(spec, info)
     if seed is None:
-        res = st.run_study(spec, out=a.out, plots=not a.no_plots and None)
+        res = st.run_study(spec, out=a.out, plots=False if a.no_plots else None)
     else:
         # run_study's body with this seed (everything else as `contfil run`)
         store = RunStore(Path(a.out), spec=st._results_spec(spec.raw), spec_text=spec.text,
