@@ -25,7 +25,7 @@ Usage::
 
     OPENBLAS_NUM_THREADS=1 nice python benchmarks/tip_ff_detached.py \
         branches/tip_ff_detached_f_b775.toml --out branches/data/tip_ff_detached_f_b775 --no-plots
-    python benchmarks/tip_ff_detached.py --summary
+    python benchmarks/tip_ff_detached.py --summary [--plot docs/figures]
 """
 
 from __future__ import annotations
@@ -92,7 +92,59 @@ def curve_point_seed(spec: st.Spec, info: st.ModelInfo) -> Seed | None:
 DATA = Path(__file__).resolve().parents[1] / "branches" / "data"
 SCANS = ("tip_ff_detached_f_b775", "tip_ff_detached_b1_f321", "tip_ff_detached_f_b239")
 CURVES = ("tip_ff_detached_lower_curve", "tip_ff_detached_lpc3_curve",
-          "tip_mix_planar_lpc2_curve", "tip_mix_planar_lpc1_curve")
+          "tip_ff_detached_lpc3_curve_down", "tip_mix_planar_lpc2_curve",
+          "tip_mix_planar_lpc1_curve")
+# tip FF's chaotic window and NS1 (docs/high-actuation.md, sessions 12-13)
+FF_WINDOW = (407.6, 458.2)
+FF_NS1 = 407.3452
+
+
+def plot(out: Path) -> Path:
+    """The curves of folds and the scans' sections in the (f, b1) plane."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5.5))
+    style = {"tip_mix_planar_lpc1_curve": ("C3", "LPC1 curve (session 13)"),
+             "tip_mix_planar_lpc2_curve": ("C1", "LPC2 curve (session 13)"),
+             "tip_ff_detached_lower_curve": ("C0", "lower edge (LPC4 ... cusp)"),
+             "tip_ff_detached_lpc3_curve": ("C2", "LPC3 curve"),
+             "tip_ff_detached_lpc3_curve_down": ("C2", None)}
+    for name in CURVES:
+        if not (DATA / name).is_dir():
+            continue
+        g = load_run_graph(DATA / name)
+        br = g.branch(next(iter(g.branches)))
+        cv = np.array([pt.params for pt in br.points], dtype=float)
+        color, label = style[name]
+        ax.plot(cv[:, 0], cv[:, 1], "-", color=color, lw=1.5, label=label)
+    for name in SCANS:
+        if not (DATA / name).is_dir():
+            continue
+        g = load_run_graph(DATA / name)
+        br = g.branch(next(iter(g.branches)))
+        xy = np.array([pt.params for pt in br.points], dtype=float)
+        ax.plot(xy[:, 0], xy[:, 1], "-", color="k", lw=3, alpha=0.35)
+        for sp in g.special_points.values():
+            ax.plot(*sp.point.params, "o", ms=4, mfc="none", color="k")
+    ax.axvspan(*FF_WINDOW, ymax=0.03, color="C4", alpha=0.6, label="tip FF chaotic window (b1 = 0)")
+    ax.axvline(FF_NS1, ymax=0.06, color="C4", lw=1)
+    ax.plot([428.46], [225.0], "*", ms=12, color="C0", label="isola point (428.46, 225.00)")
+    ax.plot([188.636, 318.38], [1536.47, 708.62], "x", ms=9, color="k", label="cusps (curves stop)")
+    ax.set_xlabel("tip follower force f")
+    ax.set_ylabel("tip squirmer strength b1")
+    ax.set_xlim(-5, 480)
+    ax.set_ylim(0, 2350)
+    ax.set_title("planar detached family: scans (grey, folds o) and curves of folds")
+    ax.legend(fontsize=7, loc="upper right")
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "tip_ff_detached.png"
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
 
 
 def summary() -> None:
@@ -144,9 +196,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out")
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--summary", action="store_true")
+    ap.add_argument("--plot", help="with --summary: folder of tip_ff_detached.png")
     a = ap.parse_args(argv)
     if a.summary:
         summary()
+        if a.plot:
+            print(plot(Path(a.plot)))
         return 0
     if a.spec is None or a.out is None:
         ap.error("a spec and --out (or --summary)")
