@@ -171,3 +171,21 @@ def test_the_lower_curve_turns_at_b1_225_and_joins_tip_sf_and_lpc1_s_end() -> No
     far = np.abs(cv[:, 1] - 1430.0) > 150.0
     assert np.max(dev[far]) < 2e-4
     assert np.max(dev) < 5e-3
+
+
+def test_lpc2_s_curve_ends_in_a_cusp_with_the_lpc3_curve() -> None:
+    """Session 13's LPC2 curve stopped at (318.38, 708.62); the curve through
+    the f-scan's other fold of the narrow hysteresis (304.63 against the
+    LPC2 curve's 304.07 at b1 = 774.61) stops at the same point, arriving
+    from the same side (f rising, b1 falling): the two folds meet there."""
+    lpc2, t2, _ = _curve("tip_mix_planar_lpc2_curve")
+    lpc3, t3, _ = _curve("tip_ff_detached_lpc3_curve")
+    start = [sp for sp in _folds("tip_ff_detached_f_b775")
+             if abs(float(sp.point.p) - 304.63359) < 1e-4]
+    assert start and np.allclose(lpc3[0], start[0].point.params, rtol=0, atol=1e-8)
+    assert np.hypot(*(lpc3[-1] - lpc2[-1])) < 0.01
+    assert abs(t3[-1] - t2[-1]) < 1e-5
+    for c_ in (lpc2, lpc3):
+        assert c_[-2, 0] < c_[-1, 0] and c_[-2, 1] > c_[-1, 1]
+    # and neither gets near the tip FF axis
+    assert min(lpc2[:, 1].min(), lpc3[:, 1].min()) > 700.0
