@@ -189,3 +189,17 @@ def test_lpc2_s_curve_ends_in_a_cusp_with_the_lpc3_curve() -> None:
         assert c_[-2, 0] < c_[-1, 0] and c_[-2, 1] > c_[-1, 1]
     # and neither gets near the tip FF axis
     assert min(lpc2[:, 1].min(), lpc3[:, 1].min()) > 700.0
+
+
+def test_the_lpc3_curve_the_other_way_ends_on_tip_sf_s_lpc3() -> None:
+    """With it, tip SF's four planar folds are the ends of two curves:
+    LPC1 ... cusp ... isola point ... LPC4, and LPC2 ... cusp ... LPC3."""
+    cv, period, _ = _curve("tip_ff_detached_lpc3_curve_down")
+    up, _, _ = _curve("tip_ff_detached_lpc3_curve")
+    assert np.array_equal(cv[0], up[0])
+    sf = load_run_graph(DATA / "tip_sf_high_planar")
+    lpc3 = sf.special_point(sf.special_id("LPC3")).point
+    assert cv[-1, 0] == 0.0
+    assert abs(cv[-1, 1] - float(lpc3.p)) < 1e-3
+    assert abs(period[-1] - float(lpc3.extra["period"])) < 1e-6
+    assert cv[:, 1].min() > 770.0
