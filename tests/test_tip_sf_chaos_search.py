@@ -5,7 +5,10 @@ tip". Session 14 (docs/high-actuation.md, "Session 14: looking for tip SF's
 chaos") simulated the planar model above the paper's range (b1 = 5500-8000,
 from the straight filament) and stored each state in the graph of
 ``branches/data/tip_sf_high3``, joined to buckled-beating's planar torus
-NS1. These tests read those nodes (``evidence["session"] == 14``): every
+NS1; and carried the 3-D post-annihilation torus (2280-2440) upward, storing
+the torus at 2450 and the chaotic state at 2455 in ``branches/data/tip_sf_high2``,
+joined to beating's annihilation LPC1. These tests read those nodes
+(``evidence["session"] == 14``): every
 label must follow from its own evidence (the exponent's bound, the
 spectrum), and the records must be what the docs say they are (planar, past
 NS1, a time step that resolves the motion at least as finely as the b1 =
@@ -17,9 +20,12 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+import pytest
+
 from contfil.store.run_store import load_run_graph
 
 ROOT = Path(__file__).resolve().parents[1]
+RUN2 = ROOT / "branches" / "data" / "tip_sf_high2"
 RUN3 = ROOT / "branches" / "data" / "tip_sf_high3"
 
 # session 11's planar record at b1 = 5000 from the straight filament: the step
@@ -33,8 +39,9 @@ def _session14(run: Path):
                if d["evidence"].get("session") == 14]
 
 
-def test_each_label_follows_from_its_evidence() -> None:
-    _, states = _session14(RUN3)
+@pytest.mark.parametrize("run", [RUN2, RUN3], ids=["tip_sf_high2", "tip_sf_high3"])
+def test_each_label_follows_from_its_evidence(run: Path) -> None:
+    _, states = _session14(run)
     assert states
     for s in states:
         ev = s["evidence"]
@@ -72,3 +79,30 @@ def test_above_5000_the_planar_states_are_tori_past_ns1_at_a_resolving_step() ->
         assert ev["lyapunov_method"] == "lockstep" and ev["lyapunov_skip_maps"] == 0
         assert ev["transient_steps"] == 150 * ev["steps_per_period"]
     assert {s["kind"] for s in high} == {"quasiperiodic"}
+
+
+def test_the_carried_3d_torus_turns_chaotic_next_to_bpc6() -> None:
+    """The sweep's last torus (2450) and its chaotic successor (2455) lie past
+    LPC1 and below BPC6 (where buckled-beating becomes stable in 3-D), are
+    joined to LPC1, and the chaotic record keeps the torus's two lines while a
+    quarter of the power leaves them: the torus broken, not a new orbit."""
+    g, states = _session14(RUN2)
+    lpc1 = g.special_point(g.special_id("LPC1"))
+    bpc6 = g.special_point(g.special_id("BPC6"))
+    from_lpc1 = set(g.states_from(g.special_id("LPC1")))
+    by_p = {s["p"]: s for s in states}
+    assert sorted(by_p) == [2450.0, 2455.0]
+    for s in states:
+        assert s["id"] in from_lpc1
+        assert lpc1.point.p < s["p"] < bpc6.point.p
+        assert s["evidence"]["planar"] is False
+        assert s["evidence"]["sweep_chain"][-1] == s["p"]
+    torus, chaos = by_p[2450.0], by_p[2455.0]
+    assert torus["kind"] == "quasiperiodic" and chaos["kind"] == "chaotic"
+    assert torus["evidence"]["section_distinct"] == 256
+    # the same two lines (the torus's bases) to within one resolution
+    res = torus["evidence"]["frequency_resolution"]
+    for a, b in zip(torus["evidence"]["bases"], chaos["evidence"]["bases"], strict=True):
+        assert abs(a - b) < res
+    assert chaos["evidence"]["discrete_fraction"] < 0.8
+    assert torus["evidence"]["discrete_fraction"] > 0.999
