@@ -139,8 +139,10 @@ def test_3d_tip_sf_buckled_beating_loses_stability_by_tori_and_leads_to_quasiper
         assert sp.data["multiplier"] != 1.0 and abs(sp.data["p_error"]) < 0.05
     ns1 = g.special_id(g.label(g.special_points_on("B0")[sps.index(tori[0])]))
     states = g.states_from(ns1)
-    assert [g.state(a)["kind"] for a in states] == ["quasiperiodic", "quasiperiodic"]
-    assert sorted(g.state(a)["p"] for a in states) == [4000.0, 5000.0]
+    # session 10's 4000 and 5000, then session 14's planar tori above 5000
+    # (tests/test_tip_sf_chaos_search.py checks those)
+    assert {g.state(a)["kind"] for a in states} == {"quasiperiodic"}
+    assert sorted(g.state(a)["p"] for a in states)[:2] == [4000.0, 5000.0]
 
 
 def test_3d_tip_sf_qp3_in_radau_has_its_own_pitchfork_where_bpc6s_family_ends() -> None:
