@@ -13,8 +13,9 @@ record's parameter.
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
+
+from evidence_rules import assert_label_follows_from_evidence
 
 from contfil.store.run_store import load_run_graph
 
@@ -45,20 +46,7 @@ def test_the_window_is_bounded_by_tori_and_chaotic_inside() -> None:
 def test_each_label_follows_from_its_evidence() -> None:
     _, states = _states()
     for s in states:
-        ev = s["evidence"]
-        assert ev["label"] == s["kind"]
-        lam, err = ev["lyapunov"], ev["lyapunov_error"]
-        if s["kind"] == "chaotic":
-            # a positive exponent beyond three errors, on a spectrum that is not
-            # all lines
-            assert lam > 3 * err > 0, s["id"]
-            assert ev["discrete_fraction"] < 0.98, s["id"]
-        else:
-            # zero within three errors, and either all lines or a bound below the
-            # spectrum's resolution rate (decisions 43)
-            assert abs(lam) <= 3 * err, s["id"]
-            resolved = lam + 3 * err < 2 * math.pi * ev["frequency_resolution"]
-            assert ev["discrete_fraction"] >= 0.98 or resolved, s["id"]
+        assert_label_follows_from_evidence(s)
 
 
 def test_the_window_states_are_joined_to_ns1_and_the_tori_above_to_beating() -> None:
