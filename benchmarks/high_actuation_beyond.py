@@ -46,6 +46,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -58,6 +59,15 @@ from contfil.models.filament.longrun import classify_run  # noqa: E402
 from contfil.store.run_store import load_run_graph, save_graph_graphml, save_graph_json  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def push_out_of_plane(sub: Any, u: np.ndarray, rng: np.random.Generator,
+                      amp: float = 1e-4) -> np.ndarray:
+    """``u`` pushed by ``amp`` in a random direction orthogonal to the invariant
+    subspace ``sub``, so that symmetry does not keep a planar orbit planar."""
+    v = rng.standard_normal(u.size)
+    w = v - np.asarray(sub.embed(np.asarray(sub.project(v))))
+    return u + amp * w / np.linalg.norm(w)
 
 
 def main() -> None:
@@ -128,11 +138,8 @@ def main() -> None:
         w = rng.standard_normal(model.dim)
         u0 = u + 1e-4 * w / np.linalg.norm(w)
     else:
-        # a small out-of-plane push, so that a planar orbit is not kept planar by symmetry
         (sub,) = subs
-        v = rng.standard_normal(model.dim)
-        w = v - np.asarray(sub.embed(np.asarray(sub.project(v))))
-        u0 = np.asarray(pt.u, dtype=float) + 1e-4 * w / np.linalg.norm(w)
+        u0 = push_out_of_plane(sub, np.asarray(pt.u, dtype=float), rng)
     t0 = time.perf_counter()
     samples_per_period = 16
     res, node = classify_run(model, u0, params, dt, args.periods * samples_per_period,

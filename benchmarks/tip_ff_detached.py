@@ -99,6 +99,17 @@ FF_WINDOW = (407.6, 458.2)
 FF_NS1 = 407.3452
 
 
+def stored(names: tuple[str, ...] | list[str]) -> list[tuple[str, object, object]]:
+    """``(name, graph, its one branch)`` of each stored run of ``names`` present."""
+    out = []
+    for name in names:
+        if (DATA / name).is_dir():
+            g = load_run_graph(DATA / name)
+            (bid,) = list(g.branches)
+            out.append((name, g, g.branch(bid)))
+    return out
+
+
 def plot(out: Path) -> Path:
     """The curves of folds and the scans' sections in the (f, b1) plane."""
     import matplotlib
@@ -112,19 +123,11 @@ def plot(out: Path) -> Path:
              "tip_ff_detached_lower_curve": ("C0", "lower edge (LPC4 ... cusp)"),
              "tip_ff_detached_lpc3_curve": ("C2", "LPC3 curve"),
              "tip_ff_detached_lpc3_curve_down": ("C2", None)}
-    for name in CURVES:
-        if not (DATA / name).is_dir():
-            continue
-        g = load_run_graph(DATA / name)
-        br = g.branch(next(iter(g.branches)))
+    for name, _, br in stored(CURVES):
         cv = np.array([pt.params for pt in br.points], dtype=float)
         color, label = style[name]
         ax.plot(cv[:, 0], cv[:, 1], "-", color=color, lw=1.5, label=label)
-    for name in SCANS:
-        if not (DATA / name).is_dir():
-            continue
-        g = load_run_graph(DATA / name)
-        br = g.branch(next(iter(g.branches)))
+    for _, g, br in stored(SCANS):
         xy = np.array([pt.params for pt in br.points], dtype=float)
         ax.plot(xy[:, 0], xy[:, 1], "-", color="k", lw=3, alpha=0.35)
         for sp in g.special_points.values():
@@ -149,12 +152,7 @@ def plot(out: Path) -> Path:
 
 def summary() -> None:
     """Print the stored runs' folds and the lower curve's lowest b1 and ends."""
-    for name in SCANS:
-        if not (DATA / name).is_dir():
-            continue
-        g = load_run_graph(DATA / name)
-        (bid,) = list(g.branches)
-        br = g.branch(bid)
+    for name, g, br in stored(SCANS):
         p = [float(pt.p) for pt in br.points]
         fixed = br.points[0].params
         print(f"{name}: {br.param} in [{min(p):.4f}, {max(p):.4f}] at (f, b1) = "
@@ -165,11 +163,7 @@ def summary() -> None:
             print(f"  {g.label(s):6s} {sp.kind:12s} {br.param} = {float(pt.p):.5f} "
                   f"(p_error {sp.data.get('p_error', float('nan')):+.1e}) T = "
                   f"{float(pt.extra['period']):.7f} unstable {pt.n_unstable}")
-    for name in CURVES:
-        if not (DATA / name).is_dir():
-            continue
-        g = load_run_graph(DATA / name)
-        br = g.branch(next(iter(g.branches)))
+    for name, _, br in stored(CURVES):
         cv = np.array([pt.params for pt in br.points], dtype=float)
         T = np.array([pt.extra["period"] for pt in br.points], dtype=float)
         dev = np.abs(np.array([pt.observables["fold_multiplier"] for pt in br.points]) - 1)

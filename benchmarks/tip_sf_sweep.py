@@ -49,7 +49,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from high_actuation_beyond import _save  # noqa: E402
+from high_actuation_beyond import _save, push_out_of_plane  # noqa: E402
 
 from contfil.app.spec import load_spec  # noqa: E402
 from contfil.app.study import build_model  # noqa: E402
@@ -101,11 +101,8 @@ def main() -> None:
         w = rng.standard_normal(model.dim)
         u = u + 1e-4 * w / np.linalg.norm(w)
     else:
-        # out of the plane, so that symmetry does not keep a planar orbit planar
         (sub,) = subs
-        v = rng.standard_normal(model.dim)
-        w = v - np.asarray(sub.embed(np.asarray(sub.project(v))))
-        u = u + 1e-4 * w / np.linalg.norm(w)
+        u = push_out_of_plane(sub, u, rng)
     values = [float(s) for s in args.p.split(",") if s.strip()]
     args.out.mkdir(parents=True, exist_ok=True)
     prev: float | None = None
